@@ -1,0 +1,30 @@
+# LanguageMPC on ROS 2 — set-up, demo, tests.
+# `make demo` and `make test` create .venv (if missing) and install everything first.
+PYTHON ?= python3.11
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.lmpc-installed
+# DDS discovery stays on this machine unless the caller opened it up (README: multi-machine).
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+
+PKGS := src/lmpc_msgs_py src/lmpc_mpc src/lmpc_bridge src/lmpc_llm_planner
+SETUPS := pyproject.toml $(foreach p,$(PKGS),$(p)/setup.py)
+
+.PHONY: install demo test clean
+
+install: $(STAMP)
+
+$(STAMP): $(SETUPS)
+	@test -x $(PY) || { command -v $(PYTHON) >/dev/null && $(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV); }
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet $(foreach p,$(PKGS),-e $(p)) -e '.[test]'
+	@touch $@
+
+demo: install
+	$(PY) scripts/run_graph.py --scenario usi --seed 0 --planner rules --clock sync
+
+test: install
+	$(PY) -m pytest
+
+clean:
+	rm -rf $(VENV) build *.egg-info src/*/*.egg-info runs

@@ -1,0 +1,1 @@
+"""lmpc_bridge."""

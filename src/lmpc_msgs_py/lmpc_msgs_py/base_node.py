@@ -1,0 +1,148 @@
+"""Shared ROS plumbing of the LanguageMPC nodes (this module is about ROS, so it imports rclpy).
+
+- :class:`LmpcNode`: a node with JSON-on-``std_msgs/String`` publishers and
+  subscriptions that validate every payload through the schemas, refuse
+  duplicates / backwards sequence numbers, count every drop and log each kind
+  of drop once per throttle period, naming topic, field and reason.
+- :func:`run_node`: the Jazzy ``main()`` pattern (STYLE.md 11).
+"""
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections import Counter
+from typing import Callable, Generic, Optional, TypeVar
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from std_msgs.msg import String
+
+from lmpc_msgs_py import qos as lmpc_qos
+from lmpc_msgs_py import topics
+from lmpc_msgs_py.codec import DecodeError, decode, encode
+from lmpc_msgs_py.freshness import SequenceGate, StaleMessage
+from lmpc_msgs_py.messages import LmpcMessage
+
+M = TypeVar("M", bound=LmpcMessage)
+
+LOG_THROTTLE_S = 5.0
+
+
+class JsonPublisher(Generic[M]):
+    """Publishes schema messages as JSON text on a ``std_msgs/String`` topic."""
+
+    def __init__(self, node: Node, cls: type[M], name: str, qos: QoSProfile) -> None:
+        self.cls = cls
+        self.topic = name
+        self._pub = node.create_publisher(String, name, qos)
+
+    def publish(self, msg: M) -> None:
+        if not isinstance(msg, self.cls):
+            raise TypeError(f"{self.topic} carries {self.cls.__name__}, not {type(msg).__name__}")
+        self._pub.publish(String(data=encode(msg)))
+
+    def subscription_count(self) -> int:
+        return self._pub.get_subscription_count()
+
+
+class LmpcNode(Node):
+    """Base node: validated JSON I/O, drop counters, throttled event logs, diagnostics."""
+
+    def __init__(self, name: str, *, ego_id: Optional[str] = None, **kwargs: object) -> None:
+        super().__init__(name, **kwargs)  # type: ignore[arg-type]
+        self.ego_id = ego_id
+        self.counters: Counter[str] = Counter()
+        self._last_log: dict[str, float] = {}
+        self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+
+    # -- names and I/O -------------------------------------------------------------------
+    def topic(self, name: str) -> str:
+        return topics.topic(name, self.ego_id)
+
+    def json_publisher(
+        self, cls: type[M], name: str, qos: QoSProfile = lmpc_qos.STREAM
+    ) -> JsonPublisher[M]:
+        return JsonPublisher(self, cls, self.topic(name), qos)
+
+    def json_subscription(
+        self,
+        cls: type[M],
+        name: str,
+        callback: Callable[[M], None],
+        qos: QoSProfile = lmpc_qos.STREAM,
+        *,
+        check_seq: bool = True,
+    ) -> None:
+        """Subscribe to ``name``; ``callback`` only ever sees valid, in-order messages."""
+        full = self.topic(name)
+        gate = SequenceGate(full)
+
+        def on_raw(raw: String) -> None:
+            try:
+                msg = decode(raw.data, cls, topic=full)
+                if check_seq:
+                    gate.check(getattr(msg, "seq", 0))
+            except (DecodeError, StaleMessage) as exc:
+                self.count_drop(full, exc.field, exc.reason)
+                return
+            callback(msg)
+
+        self.create_subscription(String, full, on_raw, qos)
+
+    # -- counters and throttled logs -----------------------------------------------------
+    def count_drop(self, topic: str, field: str, reason: str) -> None:
+        self.counters["dropped_messages"] += 1
+        self.counters[f"dropped:{topic}"] += 1
+        self.log_event(
+            f"drop:{topic}:{field}",
+            f"dropped message on {topic}: field '{field}': {reason} "
+            f"(total drops on this topic: {self.counters[f'dropped:{topic}']})",
+        )
+
+    def log_event(self, key: str, text: str, *, level: str = "warn") -> None:
+        """Log ``text`` at most once per :data:`LOG_THROTTLE_S` for the same ``key``."""
+        now = time.monotonic()
+        if now - self._last_log.get(key, -1e9) < LOG_THROTTLE_S:
+            return
+        self._last_log[key] = now
+        getattr(self.get_logger(), level)(text)
+
+    def publish_diagnostics(self, level: int, message: str, extra: dict[str, object]) -> None:
+        values = {**{k: v for k, v in self.counters.items()}, **extra}
+        status = DiagnosticStatus(
+            level=bytes([level]),
+            name=self.get_fully_qualified_name(),
+            message=message,
+            hardware_id="languagempc",
+            values=[KeyValue(key=str(k), value=str(v)) for k, v in sorted(values.items())],
+        )
+        arr = DiagnosticArray(status=[status])
+        arr.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(arr)
+
+
+def run_node(factory: Callable[[], Node], args: Optional[list[str]] = None) -> int:
+    """Jazzy ``main()``: init, spin, shut down cleanly on Ctrl-C / external shutdown.
+
+    Returns the exit code; a node may set ``node.exit_code`` and call
+    ``rclpy.try_shutdown()`` to end the spin with that code.
+    """
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    rclpy.init(args=args if args is not None else sys.argv)
+    node: Optional[Node] = None
+    code = 0
+    try:
+        node = factory()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            code = int(getattr(node, "exit_code", 0))
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
