@@ -6,7 +6,6 @@ drop and keep running (RELIABILITY.md).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import TypeVar
 
 from pydantic import ValidationError
@@ -19,16 +18,14 @@ MAX_PAYLOAD_BYTES = 1 << 20
 M = TypeVar("M", bound=LmpcMessage)
 
 
-@dataclass(frozen=True)
 class DecodeError(Exception):
-    """A payload that failed validation."""
+    """A payload that failed validation: names the topic, the field and the reason."""
 
-    topic: str
-    field: str
-    reason: str
-
-    def __str__(self) -> str:
-        return f"dropped message on {self.topic}: field '{self.field}': {self.reason}"
+    def __init__(self, topic: str, field: str, reason: str) -> None:
+        super().__init__(f"dropped message on {topic}: field '{field}': {reason}")
+        self.topic = topic
+        self.field = field
+        self.reason = reason
 
 
 def encode(msg: LmpcMessage) -> str:
@@ -45,7 +42,7 @@ def decode(text: str, cls: type[M], *, topic: str = "?") -> M:
     if len(text) > MAX_PAYLOAD_BYTES:
         raise DecodeError(topic, "<payload>", f"{len(text)} bytes exceeds {MAX_PAYLOAD_BYTES}")
     try:
-        return cls.model_validate_json(text, context={"wire": True})
+        msg = cls.model_validate_json(text)
     except ValidationError as exc:
         err = exc.errors(include_url=False)[0]
         loc = ".".join(str(p) for p in err["loc"]) or "<payload>"
@@ -63,6 +60,10 @@ def decode(text: str, cls: type[M], *, topic: str = "?") -> M:
         if more:
             reason += f" (+{more} more error{'s' if more > 1 else ''})"
         raise DecodeError(topic, loc, reason) from None
+    # Python code may omit the schema (it defaults); a message on the wire must name it.
+    if "schema_id" not in msg.model_fields_set:
+        raise DecodeError(topic, "schema", f"missing, expected {cls.SCHEMA!r}")
+    return msg
 
 
 def _short(value: object, limit: int = 60) -> str:

@@ -46,4 +46,5 @@ class SequenceGate:
 
 def is_stale(stamp_s: float, now_s: float, bound_s: float) -> bool:
     """True when ``stamp_s`` lies more than ``bound_s`` before ``now_s``."""
-    return now_s - stamp_s > bound_s
+    # 1e-9: stamps are multiples of dt, so 1.3 - 1.0 must not count as more than 0.3.
+    return now_s - stamp_s > bound_s + 1e-9

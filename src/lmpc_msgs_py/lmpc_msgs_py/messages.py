@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Any, ClassVar, Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 # --- physical bounds (refuse absurd values, RELIABILITY.md) -------------------------------
 MAX_COORD_M = 1.0e6
@@ -51,15 +51,6 @@ class LmpcMessage(BaseModel):
     )
     SCHEMA: ClassVar[str] = ""
 
-    @model_validator(mode="before")
-    @classmethod
-    def _schema_required_on_wire(cls, data: Any, info: ValidationInfo) -> Any:
-        # Objects built in Python get the schema by default; a message decoded
-        # from the wire must name its schema explicitly.
-        if info.context and info.context.get("wire") and isinstance(data, dict):
-            if "schema" not in data:
-                raise ValueError("field 'schema' is missing")
-        return data
 
 
 class _Part(BaseModel):
