@@ -1,0 +1,273 @@
+#!/usr/bin/env python3
+"""Run the LanguageMPC graph: bridge, planner and MPC as three separate processes.
+
+Starts the nodes on simulated time, prefixes and streams their logs (and keeps
+them in the run folder), stops every child on Ctrl-C or when the episode ends,
+and writes a summary JSON. Exit code: 0 target reached, 1 collision,
+2 timeout, 3 error (a node crashed, or the episode never finished).
+
+    run_graph.py --scenario usi --seed 0 --planner rules --clock sync
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Optional, Sequence
+
+EXIT_CODES = {"reached": 0, "collision": 1, "timeout": 2, "error": 3}
+
+# Each node module and how its process is called in logs.
+NODE_MODULES = {
+    "bridge": "lmpc_bridge.bridge_node",
+    "mpc": "lmpc_mpc.mpc_node",
+    "planner": "lmpc_llm_planner.planner_node",
+    "mock_llm": "lmpc_llm_planner.mock_llm_node",
+}
+
+
+def ros_env(domain_id: Optional[int] = None) -> dict[str, str]:
+    """The environment for the nodes: DDS discovery stays on this machine unless the
+    user opened it up (README, multi-machine)."""
+    env = dict(os.environ)
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    if domain_id is not None:
+        env["ROS_DOMAIN_ID"] = str(domain_id)
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
+    return env
+
+
+@dataclass
+class Child:
+    name: str
+    proc: subprocess.Popen[str]
+    log_file: IO[str]
+    tracebacks: int = 0
+    lines: list[str] = field(default_factory=list)
+
+
+class Graph:
+    """The node processes of one run, with their log pumps."""
+
+    def __init__(self, run_dir: Path, env: dict[str, str], *, echo: bool = True) -> None:
+        self.run_dir = run_dir
+        self.env = env
+        self.echo = echo
+        self.children: list[Child] = []
+        self._print_lock = threading.Lock()
+
+    def start(self, name: str, module: str, params: dict[str, object],
+              cpus: Optional[set[int]] = None) -> Child:
+        args = [sys.executable, "-m", module, "--ros-args"]
+        for key, value in params.items():
+            text = str(value).lower() if isinstance(value, bool) else str(value)
+            args += ["-p", f"{key}:={text}"]
+        log_file = open(self.run_dir / f"{name}.log", "w", encoding="utf-8")
+        proc = subprocess.Popen(
+            args, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            bufsize=1, start_new_session=True,
+        )
+        if cpus:
+            os.sched_setaffinity(proc.pid, cpus)
+        child = Child(name, proc, log_file)
+        threading.Thread(target=self._pump, args=(child,), daemon=True).start()
+        self.children.append(child)
+        return child
+
+    def _pump(self, child: Child) -> None:
+        assert child.proc.stdout is not None
+        for line in child.proc.stdout:
+            line = line.rstrip("\n")
+            child.log_file.write(line + "\n")
+            child.log_file.flush()
+            if line.startswith("Traceback"):
+                child.tracebacks += 1
+            child.lines.append(line)
+            if len(child.lines) > 200:
+                del child.lines[:100]
+            if self.echo:
+                with self._print_lock:
+                    print(f"[{child.name}] {line}", flush=True)
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """SIGINT every child, then SIGTERM / SIGKILL its process group if it lingers."""
+        for child in self.children:
+            if child.proc.poll() is None:
+                _signal_group(child.proc, signal.SIGINT)
+        deadline = time.monotonic() + timeout_s
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            for child in self.children:
+                try:
+                    child.proc.wait(max(0.0, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    _signal_group(child.proc, sig)
+            deadline = time.monotonic() + 2.0
+        for child in self.children:
+            child.proc.wait()
+            child.log_file.close()
+
+
+def _signal_group(proc: subprocess.Popen[str], sig: int) -> None:
+    try:
+        os.killpg(proc.pid, sig)
+    except ProcessLookupError:
+        pass
+
+
+def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--scenario", default="usi", help="scenario family (default usi)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--planner", choices=["rules", "none", "mock"], default="rules",
+                    help="rules: the deterministic reasoner; none: the MPC baseline alone; "
+                         "mock: the mock LLM node playing --mock-script")
+    ap.add_argument("--mock-script", type=Path, help="scripted decisions for --planner mock")
+    ap.add_argument("--clock", choices=["sync", "realtime"], default="sync")
+    ap.add_argument("--run-dir", type=Path, help="run folder (default runs/<scenario>-<seed>-<time>)")
+    ap.add_argument("--summary-json", type=Path, help="also write the summary here")
+    ap.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID for this run (default: env)")
+    ap.add_argument("--max-time-s", type=float, default=200.0, help="episode limit, sim seconds")
+    ap.add_argument("--wall-timeout-s", type=float, default=900.0,
+                    help="stop everything after this many wall seconds")
+    ap.add_argument("--quiet", action="store_true", help="do not echo node logs")
+    args = ap.parse_args(argv)
+    if args.planner == "mock" and args.mock_script is None:
+        ap.error("--planner mock needs --mock-script FILE")
+    return args
+
+
+def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, object]]:
+    with_planner = args.planner != "none"
+    params: dict[str, dict[str, object]] = {
+        "bridge": {
+            "scenario": args.scenario, "seed": args.seed, "clock_mode": args.clock,
+            "wait_for_planner": with_planner and args.clock == "sync",
+            "max_time_s": args.max_time_s, "run_dir": str(run_dir),
+        },
+        "mpc": {"use_sim_time": True},
+    }
+    if args.planner == "rules":
+        params["planner"] = {"use_sim_time": True, "backend": "rules", "run_dir": str(run_dir)}
+    elif args.planner == "mock":
+        params["mock_llm"] = {"use_sim_time": True, "script_file": str(args.mock_script.resolve())}
+    return params
+
+
+def run(args: argparse.Namespace) -> dict[str, object]:
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    run_dir = args.run_dir or Path("runs") / f"{args.scenario}-{args.seed}-{stamp}"
+    run_dir = run_dir.resolve()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "episode.json").unlink(missing_ok=True)
+    graph = Graph(run_dir, ros_env(args.domain_id), echo=not args.quiet)
+    params = node_params(args, run_dir)
+    # Keep the planner (a local LLM may saturate a core) off the core the MPC uses.
+    cpus = sorted(os.sched_getaffinity(0))
+    split = len(cpus) >= 2
+    t0 = time.monotonic()
+    interrupted = False
+    for name, p in params.items():
+        cpu_set = None
+        if split and name in ("planner", "mock_llm"):
+            cpu_set = {cpus[-1]}
+        elif split and name == "mpc":
+            cpu_set = set(cpus[:-1])
+        graph.start(name, NODE_MODULES[name], p, cpus=cpu_set)
+    bridge = graph.children[0]
+    crashed: list[str] = []
+    try:
+        while True:
+            if bridge.proc.poll() is not None:
+                break
+            for child in graph.children[1:]:
+                if child.proc.poll() is not None and child.name not in crashed:
+                    crashed.append(child.name)
+            if crashed:
+                break
+            if time.monotonic() - t0 > args.wall_timeout_s:
+                crashed.append("wall-timeout")
+                break
+            time.sleep(0.05)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        graph.stop()
+    wall_s = time.monotonic() - t0
+    return summarize(run_dir, graph, wall_s, crashed=crashed, interrupted=interrupted, args=args)
+
+
+def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
+              interrupted: bool, args: argparse.Namespace) -> dict[str, object]:
+    episode_path = run_dir / "episode.json"
+    episode = json.loads(episode_path.read_text()) if episode_path.exists() else {}
+    outcome = episode.get("outcome", "error")
+    detail = episode.get("detail", "")
+    bridge = graph.children[0]
+    if crashed or interrupted or bridge.proc.returncode not in (0, None) or not episode:
+        outcome = "error"
+        reasons = [f"node {c} stopped early" for c in crashed if c != "wall-timeout"]
+        if "wall-timeout" in crashed:
+            reasons.append(f"wall timeout {args.wall_timeout_s:.0f}s")
+        if interrupted:
+            reasons.append("interrupted")
+        if not episode:
+            reasons.append("the bridge wrote no episode record")
+        detail = "; ".join(reasons) or detail
+    sim_s = float(episode.get("sim_time_s", 0.0))
+    metrics = episode.get("metrics", {})
+    summary: dict[str, object] = {
+        "scenario": args.scenario,
+        "seed": args.seed,
+        "planner": args.planner,
+        "clock": args.clock,
+        "outcome": outcome,
+        "detail": detail,
+        "sim_time_s": sim_s,
+        "wall_time_s": round(wall_s, 3),
+        "real_time_factor": round(sim_s / wall_s, 3) if wall_s > 0 else None,
+        "collisions": metrics.get("collisions", 0),
+        "decisions": episode.get("decisions", 0),
+        "fallbacks": episode.get("fallbacks", 0),
+        "late_controls": episode.get("late_controls", 0),
+        "mpc_solve_ms": episode.get("mpc_solve_ms", {}),
+        "control_latency_ms": episode.get("control_latency_ms", {}),
+        "metrics": metrics,
+        "nodes": {c.name: {"exit_code": c.proc.returncode, "tracebacks": c.tracebacks}
+                  for c in graph.children},
+        "run_dir": str(run_dir),
+    }
+    text = json.dumps(summary, indent=2)
+    (run_dir / "summary.json").write_text(text)
+    if args.summary_json:
+        args.summary_json.parent.mkdir(parents=True, exist_ok=True)
+        args.summary_json.write_text(text)
+    return summary
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    args = parse_args(argv)
+    summary = run(args)
+    print(
+        f"[run_graph] outcome={summary['outcome']} sim={summary['sim_time_s']:.1f}s "
+        f"wall={summary['wall_time_s']:.1f}s rtf={summary['real_time_factor']} "
+        f"decisions={summary['decisions']} fallbacks={summary['fallbacks']} "
+        f"solve_ms={summary['mpc_solve_ms']} latency_ms={summary['control_latency_ms']} "
+        f"O.C.={summary['metrics'].get('overall_cost') if summary['metrics'] else None} "  # type: ignore[union-attr]
+        f"run_dir={summary['run_dir']}",
+        flush=True,
+    )
+    if summary["detail"]:
+        print(f"[run_graph] {summary['detail']}", flush=True)
+    return EXIT_CODES.get(str(summary["outcome"]), 3)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

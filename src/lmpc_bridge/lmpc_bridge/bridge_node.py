@@ -1,0 +1,358 @@
+"""ROS 2 node `sumo_bridge`: steps SUMO, publishes the world, applies controls.
+
+A thin wrapper around :class:`lmpc_bridge.sim.SumoSim` (all simulation logic
+lives there). Two clock modes (DESIGN §2, docs/ARCHITECTURE.md):
+
+- ``sync`` (default): lock-step. Step k+1 happens only once the control for
+  step k (and, with a planner, the planner's status for step k) arrived; a
+  control more than ``control_timeout_s`` wall late is counted late and the ego
+  brakes for that step.
+- ``realtime``: steps paced by a 10 Hz wall timer; the newest control that is
+  not older than ``control_stale_s`` sim is applied, otherwise the ego brakes.
+
+The bridge is the clock source (``/clock``) and runs on wall time itself.
+"""
+from __future__ import annotations
+
+import json
+import math
+import statistics
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal, Optional
+
+import rclpy
+from builtin_interfaces.msg import Time as TimeMsg
+from nav_msgs.msg import Odometry
+from pydantic import BaseModel, ConfigDict, Field
+from rcl_interfaces.msg import ParameterDescriptor
+from rosgraph_msgs.msg import Clock
+
+from lmpc_bridge.sim import SumoSim
+from lmpc_msgs_py import qos as lmpc_qos
+from lmpc_msgs_py import topics
+from lmpc_msgs_py.base_node import LmpcNode, run_node
+from lmpc_msgs_py.messages import (
+    AgentArray,
+    Control,
+    Decision,
+    EgoState,
+    EpisodeStatus,
+    MapSnapshot,
+    PlannerStatus,
+    SignalStates,
+)
+from lmpc_msgs_py.observation import Observation
+
+
+class BridgeConfig(BaseModel):
+    """Parameters of the bridge node, mapped once from ROS parameters."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    scenario: str = "usi"
+    seed: int = Field(0, ge=0)
+    clock_mode: Literal["sync", "realtime"] = "sync"
+    wait_for_planner: bool = False
+    """Sync mode: also wait for the planner's status of each step (set when a planner runs)."""
+    control_timeout_s: float = Field(1.0, gt=0)
+    """Sync mode: wall seconds to wait for a step's control before counting it late."""
+    planner_timeout_s: float = Field(30.0, gt=0)
+    """Sync mode: wall seconds to wait for the planner's status (longer than its LLM deadline)."""
+    control_stale_s: float = Field(0.3, gt=0)
+    """Realtime mode: a control older than this (sim) is not applied."""
+    max_time_s: float = Field(200.0, gt=0)
+    run_dir: str = ""
+    progress_period_s: float = Field(5.0, gt=0)
+    """Sim seconds between progress log lines."""
+    linger_s: float = Field(1.0, ge=0)
+    """Wall seconds to keep serving after the episode ended (final status delivery)."""
+    ego_id: str = ""
+
+
+@dataclass
+class _StepTiming:
+    published_wall_s: float
+    control_latency_ms: Optional[float] = None
+
+
+@dataclass
+class _RunStats:
+    decisions: dict[str, str] = field(default_factory=dict)  # id -> source
+    solve_ms: list[float] = field(default_factory=list)
+    latency_ms: list[float] = field(default_factory=list)
+    late_controls: int = 0
+    control_modes: dict[str, int] = field(default_factory=dict)
+
+
+def _percentiles(values: list[float]) -> dict[str, Optional[float]]:
+    if not values:
+        return {"median": None, "p99": None, "max": None}
+    ordered = sorted(values)
+    p99 = ordered[min(len(ordered) - 1, math.ceil(0.99 * len(ordered)) - 1)]
+    return {
+        "median": round(statistics.median(ordered), 3),
+        "p99": round(p99, 3),
+        "max": round(ordered[-1], 3),
+    }
+
+
+def _stamp(t_s: float) -> TimeMsg:
+    sec = int(math.floor(t_s))
+    return TimeMsg(sec=sec, nanosec=int(round((t_s - sec) * 1e9)) % 1_000_000_000)
+
+
+class BridgeNode(LmpcNode):
+    def __init__(self) -> None:
+        super().__init__("sumo_bridge")
+        self.cfg = self._read_config()
+        if self.cfg.ego_id:
+            self.ego_id = self.cfg.ego_id
+        self.exit_code = 0
+        run_dir = Path(self.cfg.run_dir) if self.cfg.run_dir else Path(tempfile.mkdtemp("-lmpc"))
+        run_dir.mkdir(parents=True, exist_ok=True)
+        self.run_dir = run_dir
+
+        self.sim = SumoSim(work_dir=run_dir / "scene")
+        self.get_logger().info(
+            f"building scene {self.cfg.scenario} seed {self.cfg.seed} ({self.cfg.clock_mode} clock)"
+        )
+        self.sim.reset(self.cfg.scenario, self.cfg.seed)
+
+        self.pub_clock = self.create_publisher(Clock, topics.CLOCK, lmpc_qos.CLOCK)
+        self.pub_map = self.json_publisher(MapSnapshot, topics.MAP, lmpc_qos.LATCHED)
+        self.pub_ego = self.json_publisher(EgoState, topics.EGO_STATE)
+        self.pub_agents = self.json_publisher(AgentArray, topics.AGENTS)
+        self.pub_signals = self.json_publisher(SignalStates, topics.SIGNALS)
+        self.pub_episode = self.json_publisher(EpisodeStatus, topics.EPISODE, lmpc_qos.LATCHED)
+        self.pub_odom = self.create_publisher(Odometry, self.topic(topics.EGO_ODOM), lmpc_qos.MIRROR)
+
+        self.json_subscription(Control, topics.CONTROL, self._on_control)
+        self.json_subscription(Decision, topics.DECISION, self._on_decision)
+        self.json_subscription(PlannerStatus, topics.PLANNER_STATUS, self._on_planner_status)
+
+        self.stats = _RunStats()
+        self.timing: dict[int, _StepTiming] = {}
+        self.latest_control: Optional[Control] = None
+        self.planner_stamp_s = -1.0
+        self.required_decision_id: Optional[str] = None
+        self.started = False
+        self.finished = False
+        self.next_progress_s = 0.0
+        self.waiting_since = time.monotonic()
+        self.finished_wall_s = 0.0
+
+        self.pub_map.publish(self.sim.map)
+        if self.cfg.clock_mode == "sync":
+            self.create_timer(0.02, self._sync_watchdog)
+        else:
+            self.create_timer(self.sim.dt_s, self._realtime_tick)
+        self.create_timer(1.0, self._diagnostics)
+        self.get_logger().info(f"run folder {self.run_dir}")
+
+    # -- configuration -------------------------------------------------------------------
+    def _read_config(self) -> BridgeConfig:
+        values = {}
+        for name, info in BridgeConfig.model_fields.items():
+            default = info.default
+            desc = ParameterDescriptor(description=(info.description or name))
+            values[name] = self.declare_parameter(name, default, desc).value
+        return BridgeConfig(**values)
+
+    # -- inputs --------------------------------------------------------------------------
+    def _on_control(self, msg: Control) -> None:
+        if self.finished:
+            return
+        k = round(msg.stamp_s / self.sim.dt_s)
+        timing = self.timing.get(k)
+        if timing is not None and timing.control_latency_ms is None:
+            timing.control_latency_ms = (time.monotonic() - timing.published_wall_s) * 1e3
+        if self.latest_control is None or msg.stamp_s >= self.latest_control.stamp_s:
+            self.latest_control = msg
+        if self.cfg.clock_mode == "sync":
+            self._try_sync_step()
+
+    def _on_decision(self, msg: Decision) -> None:
+        self.stats.decisions.setdefault(msg.decision_id, msg.source)
+
+    def _on_planner_status(self, msg: PlannerStatus) -> None:
+        self.planner_stamp_s = max(self.planner_stamp_s, msg.stamp_s)
+        if msg.last_decision_id is not None:
+            self.required_decision_id = msg.last_decision_id
+        if self.cfg.clock_mode == "sync" and not self.finished:
+            self._try_sync_step()
+
+    # -- stepping ------------------------------------------------------------------------
+    def _ready_to_start(self) -> Optional[str]:
+        """None when every participant is connected, else what we wait for."""
+        need_subs = 2 if self.cfg.wait_for_planner else 1
+        if self.pub_ego.subscription_count() < need_subs:
+            return f"subscribers of {self.pub_ego.topic} ({self.pub_ego.subscription_count()} of {need_subs})"
+        if self.count_publishers(self.topic(topics.CONTROL)) < 1:
+            return f"a publisher on {self.topic(topics.CONTROL)} (mpc_controller)"
+        if self.cfg.wait_for_planner and self.count_publishers(self.topic(topics.PLANNER_STATUS)) < 1:
+            return f"a publisher on {self.topic(topics.PLANNER_STATUS)} (llm_planner)"
+        return None
+
+    def _publish_step(self) -> None:
+        obs: Observation = self.sim.observe(required_decision_id=self.required_decision_id)
+        t = obs.stamp_s
+        self.pub_clock.publish(Clock(clock=_stamp(t)))
+        self.timing[obs.ego.seq] = _StepTiming(published_wall_s=time.monotonic())
+        self.pub_ego.publish(obs.ego)
+        self.pub_agents.publish(obs.agents)
+        self.pub_signals.publish(obs.signals)
+        self._publish_odom(obs.ego)
+        self.waiting_since = time.monotonic()
+        if t >= self.next_progress_s:
+            self.next_progress_s = t + self.cfg.progress_period_s
+            self.get_logger().info(
+                f"progress t={t:.1f}s v={obs.ego.v_mps:.1f}m/s "
+                f"dist_to_target={obs.ego.dist_to_target_m:.1f}m decisions={len(self.stats.decisions)}"
+            )
+            self.pub_episode.publish(self.sim.status())
+
+    def _publish_odom(self, ego: EgoState) -> None:
+        odom = Odometry()
+        odom.header.stamp = _stamp(ego.stamp_s)
+        odom.header.frame_id = "map"
+        odom.child_frame_id = "ego"
+        odom.pose.pose.position.x = ego.x_m
+        odom.pose.pose.position.y = ego.y_m
+        odom.pose.pose.orientation.z = math.sin(ego.yaw_rad / 2.0)
+        odom.pose.pose.orientation.w = math.cos(ego.yaw_rad / 2.0)
+        odom.twist.twist.linear.x = ego.v_mps
+        self.pub_odom.publish(odom)
+
+    def _control_for_current_step(self) -> Optional[Control]:
+        ctl = self.latest_control
+        if ctl is None:
+            return None
+        if self.cfg.clock_mode == "sync":
+            return ctl if abs(ctl.stamp_s - self.sim.time_s) < 1e-6 else None
+        stale = self.sim.time_s - ctl.stamp_s > self.cfg.control_stale_s + 1e-9
+        return None if stale else ctl
+
+    def _advance(self, control: Optional[Control]) -> None:
+        k = self.sim.step_index
+        if control is None:
+            self.stats.late_controls += 1
+            self.log_event("late-control", f"no control for step {k} (t={self.sim.time_s:.1f}s): "
+                           "braking the ego at a bounded deceleration")
+        else:
+            self.stats.solve_ms.append(control.solve_time_ms)
+            self.stats.control_modes[control.mode] = self.stats.control_modes.get(control.mode, 0) + 1
+        timing = self.timing.pop(k, None)
+        if timing is not None and timing.control_latency_ms is not None and control is not None:
+            self.stats.latency_ms.append(timing.control_latency_ms)
+        self.sim.step(control)
+        status = self.sim.status()
+        if status.outcome != "running":
+            self._finish(status)
+        else:
+            self._publish_step()
+
+    def _try_sync_step(self) -> None:
+        if not self.started or self.finished:
+            return
+        if self._control_for_current_step() is None:
+            return
+        if self.cfg.wait_for_planner and self.planner_stamp_s < self.sim.time_s - 1e-6:
+            return
+        self._advance(self._control_for_current_step())
+
+    def _sync_watchdog(self) -> None:
+        now = time.monotonic()
+        if self.finished:
+            if now - self.finished_wall_s >= self.cfg.linger_s:
+                rclpy.try_shutdown()
+            return
+        if not self.started:
+            missing = self._ready_to_start()
+            if missing is not None:
+                if now - self.waiting_since > 2.0:
+                    self.log_event("startup", f"waiting for {missing}", level="info")
+                return
+            self.started = True
+            self.get_logger().info("all participants connected: starting the episode")
+            self._publish_step()
+            return
+        waited = now - self.waiting_since
+        have_control = self._control_for_current_step() is not None
+        if not have_control and waited > self.cfg.control_timeout_s:
+            if self.sim.step_index == 0:
+                # Discovery may still be settling: offer step 0 again rather than count it late.
+                self._publish_step()
+                return
+            self._advance(None)
+        elif have_control and self.cfg.wait_for_planner and waited > self.cfg.planner_timeout_s:
+            self.log_event("late-planner", f"planner status for t={self.sim.time_s:.1f}s "
+                           f"missing after {self.cfg.planner_timeout_s:.0f}s wall: stepping on")
+            self._advance(self._control_for_current_step())
+
+    def _realtime_tick(self) -> None:
+        if self.finished:
+            if time.monotonic() - self.finished_wall_s >= self.cfg.linger_s:
+                rclpy.try_shutdown()
+            return
+        if not self.started:
+            self.started = True
+            self._publish_step()
+            return
+        self._advance(self._control_for_current_step())
+
+    # -- end of episode ------------------------------------------------------------------
+    def _finish(self, status: EpisodeStatus) -> None:
+        self.finished = True
+        self.finished_wall_s = time.monotonic()
+        self.pub_episode.publish(status)
+        self.get_logger().info(
+            f"episode ended: {status.outcome} at t={status.stamp_s:.1f}s {status.detail}".rstrip()
+        )
+        self._write_episode(status)
+
+    def _write_episode(self, status: EpisodeStatus) -> None:
+        sources = list(self.stats.decisions.values())
+        out = {
+            "scenario": self.cfg.scenario,
+            "seed": self.cfg.seed,
+            "clock_mode": self.cfg.clock_mode,
+            "outcome": status.outcome,
+            "detail": status.detail,
+            "collided_with": status.collided_with,
+            "sim_time_s": status.stamp_s,
+            "metrics": status.metrics.model_dump(),
+            "decisions": len(sources),
+            "fallbacks": sum(1 for s in sources if s == "fallback"),
+            "late_controls": self.stats.late_controls,
+            "control_modes": self.stats.control_modes,
+            "mpc_solve_ms": _percentiles(self.stats.solve_ms),
+            "control_latency_ms": _percentiles(self.stats.latency_ms),
+            "dropped_messages": self.counters.get("dropped_messages", 0),
+            "record": self.sim.record().to_json(),
+        }
+        path = self.run_dir / "episode.json"
+        path.write_text(json.dumps(out, indent=1))
+        self.get_logger().info(f"episode record written to {path}")
+
+    def _diagnostics(self) -> None:
+        mode = "finished" if self.finished else ("running" if self.started else "waiting")
+        self.publish_diagnostics(0, mode, {
+            "sim_time_s": round(self.sim.time_s, 2),
+            "late_controls": self.stats.late_controls,
+            "decisions": len(self.stats.decisions),
+        })
+
+    def destroy_node(self) -> None:
+        self.sim.close()
+        super().destroy_node()
+
+
+def main(args: Optional[list[str]] = None) -> int:
+    return run_node(BridgeNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

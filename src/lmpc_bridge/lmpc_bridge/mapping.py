@@ -1,0 +1,135 @@
+"""Static map of a scene as a ``MapSnapshot`` (lanes, links, stop lines, ego route, target).
+
+Read once per scene from the SUMO network file with ``sumolib`` (plain file
+parsing, no running simulation). Also provides :class:`RouteGeometry`, the ego
+route as lanes with lengths, for route progress and distance to the target.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from lmpc_msgs_py.messages import Lane, LaneLink, MapSnapshot, StopLine, TargetArea
+
+from lmpc_bridge.scenarios.base import Scene, SceneError
+
+_DIRECTIONS = {"s", "l", "r", "t", "L", "R"}
+MAP_RADIUS_M = 300.0
+"""Lanes with any centerline point within this distance of the ego route are in the map."""
+
+
+@dataclass(frozen=True)
+class RouteGeometry:
+    """The ego route as a lane sequence (internal junction lanes included) with lengths."""
+
+    lane_ids: tuple[str, ...]
+    lengths_m: tuple[float, ...]
+    target_pos_m: float
+    """Target position along the last lane."""
+
+    def index_of(self, lane_id: str | None, *, previous_index: int) -> int:
+        """Route index of ``lane_id``; off-route lanes keep the previous index (monotonic)."""
+        if lane_id:
+            for i in range(previous_index, len(self.lane_ids)):
+                if self.lane_ids[i] == lane_id:
+                    return i
+            edge = lane_id.rsplit("_", 1)[0]
+            for i in range(previous_index, len(self.lane_ids)):
+                if self.lane_ids[i].rsplit("_", 1)[0] == edge:
+                    return i  # a parallel lane of the same edge: same progress
+        return previous_index
+
+    def dist_to_target_m(self, route_index: int, lane_pos_m: float) -> float:
+        """Distance along the route from ``lane_pos_m`` on lane ``route_index`` to the target."""
+        last = len(self.lane_ids) - 1
+        if route_index >= last:
+            return max(self.target_pos_m - lane_pos_m, 0.0)
+        remaining = max(self.lengths_m[route_index] - lane_pos_m, 0.0)
+        remaining += sum(self.lengths_m[route_index + 1:last])
+        return remaining + self.target_pos_m
+
+
+def _read_net(net_file: str) -> Any:
+    import sumolib
+
+    return sumolib.net.readNet(net_file, withInternal=True)
+
+
+def _route_lanes(net: Any, scene: Scene) -> list[str]:
+    edges = scene.ego_route_edges
+    lane = net.getEdge(edges[0]).getLanes()[scene.ego_depart_lane]
+    lanes = [lane.getID()]
+    for next_edge in edges[1:]:
+        conns = [c for c in lane.getOutgoing() if c.getToLane().getEdge().getID() == next_edge]
+        if not conns:
+            raise SceneError(f"route of scene {scene.family}/{scene.seed}: lane {lane.getID()} "
+                             f"has no connection to edge {next_edge}")
+        conn = min(conns, key=lambda c: c.getToLane().getIndex())
+        via = conn.getViaLaneID()
+        while via:  # follow the chain of internal lanes (split at internal junctions)
+            lanes.append(via)
+            inner = [c for c in net.getLane(via).getOutgoing()
+                     if c.getToLane().getID() == conn.getToLane().getID()]
+            via = inner[0].getViaLaneID() if inner else ""
+        lane = conn.getToLane()
+        lanes.append(lane.getID())
+    return lanes
+
+
+def _link(conn: Any) -> LaneLink:
+    tls = conn.getTLSID() or None
+    index = conn.getTLLinkIndex()
+    direction = conn.getDirection()
+    return LaneLink(
+        to_lane=conn.getToLane().getID(),
+        via_lane=conn.getViaLaneID() or None,
+        direction=direction if direction in _DIRECTIONS else "invalid",
+        signalized=tls is not None,
+        tls_id=tls,
+        link_index=index if (tls is not None and index >= 0) else None,
+    )
+
+
+def build_map(scene: Scene, *, map_radius_m: float = MAP_RADIUS_M,
+              stamp_s: float = 0.0) -> tuple[MapSnapshot, RouteGeometry]:
+    """Build the scene's ``MapSnapshot`` and the ego's ``RouteGeometry`` from its net file."""
+    net = _read_net(str(scene.net_file))
+    route = _route_lanes(net, scene)
+    route_pts = [p for lane_id in route for p in net.getLane(lane_id).getShape()]
+
+    def near_route(shape: list[tuple[float, float]]) -> bool:
+        return any(math.hypot(p[0] - q[0], p[1] - q[1]) <= map_radius_m
+                   for p in shape for q in route_pts[:: max(len(route_pts) // 50, 1)])
+
+    lanes: list[Lane] = []
+    stop_lines: list[StopLine] = []
+    for edge in net.getEdges(withInternal=True):
+        internal = edge.getFunction() == "internal"
+        for lane in edge.getLanes():
+            shape = [(float(x), float(y)) for x, y in lane.getShape()]
+            if lane.getID() not in route and not near_route(shape):
+                continue
+            outgoing = lane.getOutgoing()
+            lanes.append(Lane(
+                id=lane.getID(), edge_id=edge.getID(), index=lane.getIndex(),
+                centerline=tuple(shape), width_m=float(lane.getWidth()),
+                speed_limit_mps=float(lane.getSpeed()), length_m=float(lane.getLength()),
+                internal=internal, successors=tuple(_link(c) for c in outgoing),
+            ))
+            to_node = edge.getToNode()
+            if (not internal and outgoing and to_node is not None
+                    and to_node.getType() not in ("dead_end",)):
+                stop_lines.append(StopLine(
+                    lane_id=lane.getID(), position=shape[-1], junction_id=to_node.getID(),
+                    signalized=any(c.getTLSID() for c in outgoing)))
+    lengths = tuple(float(net.getLane(lane_id).getLength()) for lane_id in route)
+    geometry = RouteGeometry(lane_ids=tuple(route), lengths_m=lengths,
+                             target_pos_m=scene.target.lane_pos_m)
+    snapshot = MapSnapshot(
+        stamp_s=stamp_s, lanes=tuple(lanes), stop_lines=tuple(stop_lines),
+        ego_route=tuple(route),
+        target=TargetArea(lane_ids=scene.target.lane_ids, center=scene.target.center,
+                          radius_m=scene.target.radius_m),
+    )
+    return snapshot, geometry

@@ -1,0 +1,19 @@
+"""Scenario suite: a registry of families, one seeded generator each (DESIGN §6).
+
+``build_scene(family, seed, work_dir=...)`` returns a :class:`Scene`; importing this
+package registers every family module listed below.
+"""
+from lmpc_bridge.scenarios import usi  # noqa: F401  (registers the family)
+from lmpc_bridge.scenarios.base import (
+    DEFAULT_MAX_TIME_S,
+    GENERATOR_VERSION,
+    Scene,
+    SceneError,
+    TargetSpec,
+    build_scene,
+    families,
+    register_family,
+)
+
+__all__ = ["DEFAULT_MAX_TIME_S", "GENERATOR_VERSION", "Scene", "SceneError", "TargetSpec",
+           "build_scene", "families", "register_family"]

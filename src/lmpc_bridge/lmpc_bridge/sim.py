@@ -1,0 +1,554 @@
+"""``SumoSim``: one SUMO episode driven through libsumo, with the ego moved by our own model.
+
+Per step: guard-clamp the control, integrate the ego's kinematic bicycle, place
+the ego in SUMO (``vehicle.moveToXY`` with ``keepRoute=2``, front bumper, SUMO
+angle), ``simulationStep()``, then check collisions with oriented boxes (SUMO
+does not detect every collision of an externally moved vehicle), the target and
+the time limit, and append to the per-step record.
+
+The ego stays a normal SUMO vehicle, so other drivers' car following and
+junction logic see it (SUMO derives its speed from the displacement).
+Observations come from one context subscription around the ego (vehicles and
+persons within the sensing range) and carry only observable data (DESIGN §3).
+
+libsumo runs one simulation per process: one ``SumoSim`` per process, and
+:meth:`close` before another ``reset``/``start`` (``reset`` does it for you).
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import libsumo
+import traci.constants as tc
+
+from lmpc_msgs_py.messages import (
+    Agent,
+    AgentArray,
+    AgentSignals,
+    Control,
+    EgoState,
+    EpisodeStatus,
+    HistoryPoint,
+    LinkSignal,
+    MapSnapshot,
+    SignalStates,
+)
+from lmpc_msgs_py.observation import Observation
+from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
+
+from lmpc_bridge.dynamics import EgoPose, clamp_control, step_bicycle, wrap_angle_rad
+from lmpc_bridge.geometry import OrientedBox, box_gap_m, boxes_overlap
+from lmpc_bridge.mapping import RouteGeometry, build_map
+from lmpc_bridge.metrics import compute_metrics
+from lmpc_bridge.record import EpisodeRecord, NearbyVehicle, StepRecord
+from lmpc_bridge.scenarios import Scene, build_scene
+
+DT_S = 0.1
+EGO_ID = "ego"
+MAX_AGENT_ACCEL_MPS2 = 15.0
+CONTROL_STALE_S = 0.3
+"""A control stamped more than this before the current step counts as late (RELIABILITY)."""
+AFFECTED_RADIUS_M = 50.0
+
+_VEHICLE_VARS = (
+    tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_ACCELERATION, tc.VAR_LENGTH,
+    tc.VAR_WIDTH, tc.VAR_LANE_ID, tc.VAR_LANEPOSITION, tc.VAR_SIGNALS, tc.VAR_VEHICLECLASS,
+    tc.VAR_ALLOWED_SPEED, tc.VAR_MAXSPEED,
+)
+_PERSON_VARS = (tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_LANE_ID,
+                tc.VAR_LANEPOSITION)
+_PERSON_LENGTH_M, _PERSON_WIDTH_M = 0.5, 0.5  # the subscription cannot give a person's size
+
+# getSignals bits (SUMO TraCI docs, "signalling")
+_SIG_RIGHT, _SIG_LEFT, _SIG_BRAKE = 1 << 0, 1 << 1, 1 << 3
+
+_KIND_BY_VCLASS = {
+    "passenger": "car", "private": "car", "taxi": "car", "evehicle": "car", "emergency": "car",
+    "authority": "car", "army": "car", "vip": "car", "custom1": "car", "custom2": "car",
+    "truck": "truck", "trailer": "truck", "delivery": "truck",
+    "bus": "bus", "coach": "bus", "tram": "bus",
+    "motorcycle": "motorcycle", "moped": "motorcycle",
+    "bicycle": "bicycle", "pedestrian": "pedestrian",
+}
+
+Outcome = Literal["running", "reached", "collision", "timeout", "error"]
+
+
+class SimError(RuntimeError):
+    """The simulation cannot do what was asked (not started, episode over, SUMO failure)."""
+
+
+@dataclass(frozen=True)
+class StepInfo:
+    """What one :meth:`SumoSim.step` did."""
+
+    step_index: int
+    time_s: float
+    outcome: Outcome
+    clamped: bool
+    late: bool
+    applied_accel_mps2: float
+    applied_steer_rad: float
+    collided_with: str | None = None
+
+
+@dataclass(frozen=True)
+class _Seen:
+    """One participant as the context subscription reports it (converted to our frame)."""
+
+    id: str
+    kind: str
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    v_mps: float
+    a_mps2: float
+    length_m: float
+    width_m: float
+    lane_id: str | None
+    lane_pos_m: float
+    signals: int
+    v_max_mps: float
+
+    def box(self) -> OrientedBox:
+        return OrientedBox(self.x_m, self.y_m, self.yaw_rad, self.length_m, self.width_m)
+
+
+def yaw_from_sumo_angle(angle_deg: float) -> float:
+    """SUMO angle (degrees clockwise from north) -> yaw (rad counter-clockwise from east)."""
+    return wrap_angle_rad(math.radians(90.0 - angle_deg))
+
+
+def sumo_angle_from_yaw(yaw_rad: float) -> float:
+    return (90.0 - math.degrees(yaw_rad)) % 360.0
+
+
+def _clip(value: float, low: float, high: float) -> float:
+    return min(max(value, low), high)
+
+
+class SumoSim:
+    """One SUMO episode at a time, the ego integrated by the bridge (see module docstring)."""
+
+    def __init__(self, *, vehicle: VehicleParams = DEFAULT_VEHICLE,
+                 sensing_range_m: float = 80.0, history_s: float = 2.0, work_dir: Path,
+                 traci: Any = libsumo, sumo_binary: str = "sumo",
+                 extra_sumo_args: tuple[str, ...] = ()) -> None:
+        self._vehicle = vehicle
+        self._range_m = float(sensing_range_m)
+        self._history_len = max(int(round(history_s / DT_S)), 1)
+        self._work_dir = Path(work_dir)
+        self._traci = traci
+        self._binary = sumo_binary
+        self._extra_args = tuple(extra_sumo_args)
+        self._started = False
+        self._scene: Scene | None = None
+        self._map: MapSnapshot | None = None
+        self._route: RouteGeometry | None = None
+        self._reset_state()
+
+    def _reset_state(self) -> None:
+        self._step_index = 0
+        self._pose = EgoPose(0.0, 0.0, 0.0, 0.0)
+        self._seen: dict[str, _Seen] = {}
+        self._history: dict[str, deque[HistoryPoint]] = {}
+        self._ego_lane: str | None = None
+        self._ego_lane_pos_m = 0.0
+        self._route_index = 0
+        self._dist_to_target_m = 0.0
+        self._signals: tuple[LinkSignal, ...] = ()
+        self._steps: list[StepRecord] = []
+        self._outcome: Outcome = "running"
+        self._detail = ""
+        self._collided_with: str | None = None
+        self._reached_at_s: float | None = None
+        self._max_time_s = 200.0
+
+    # --- lifecycle ----------------------------------------------------------------------
+    def reset(self, family: str, seed: int, *, max_time_s: float | None = None) -> Observation:
+        """Build the scene, start SUMO, insert the ego; returns the observation at t = 0."""
+        self.close()
+        self._reset_state()
+        scene = build_scene(family, seed, work_dir=self._work_dir)
+        self._scene = scene
+        self._max_time_s = scene.max_time_s if max_time_s is None else float(max_time_s)
+        t = self._traci
+        cmd = [self._binary, "-n", str(scene.net_file), "-r", str(scene.route_file),
+               "--step-length", f"{DT_S}", "--time-to-teleport", "-1",
+               "--collision.action", "none",  # the bridge checks collisions itself
+               "--seed", str(seed), "--no-step-log", "true", "--no-warnings", "true",
+               "--duration-log.disable", "true"]
+        if scene.additional_files:
+            cmd += ["-a", ",".join(str(p) for p in scene.additional_files)]
+        cmd += list(self._extra_args)
+        t.start(cmd)
+        self._started = True
+        t.vehicle.add(EGO_ID, "r_ego", typeID="ego_type", depart="now",
+                      departLane=str(scene.ego_depart_lane),
+                      departPos=f"{scene.ego_depart_pos_m:.3f}",
+                      departSpeed=f"{scene.ego_depart_speed_mps:.3f}")
+        # The bridge moves the ego; SUMO must not brake or change lanes on its own.
+        t.vehicle.setSpeedMode(EGO_ID, 0)
+        t.vehicle.setLaneChangeMode(EGO_ID, 0)
+        t.simulationStep()  # inserts the ego (and the background traffic departing at 0)
+        if EGO_ID not in t.vehicle.getIDList():
+            raise SimError(f"scene {family}/{seed}: SUMO did not insert the ego (blocked)")
+        self._t0_s = float(t.simulation.getTime())  # our t = 0 is SUMO's first step
+        t.vehicle.subscribeContext(EGO_ID, tc.CMD_GET_VEHICLE_VARIABLE, self._range_m,
+                                   list(_VEHICLE_VARS))
+        t.vehicle.subscribeContext(EGO_ID, tc.CMD_GET_PERSON_VARIABLE, self._range_m,
+                                   list(_PERSON_VARS))
+        self._map, self._route = build_map(scene)
+        fx, fy = t.vehicle.getPosition(EGO_ID)
+        yaw = yaw_from_sumo_angle(t.vehicle.getAngle(EGO_ID))
+        half = self._vehicle.length_m / 2.0
+        self._pose = EgoPose(x_m=fx - half * math.cos(yaw), y_m=fy - half * math.sin(yaw),
+                             yaw_rad=yaw, v_mps=scene.ego_depart_speed_mps)
+        self._refresh()
+        return self.observe()
+
+    def close(self) -> None:
+        """Stop SUMO (safe to call twice)."""
+        if self._started:
+            try:
+                self._traci.close()
+            finally:
+                self._started = False
+
+    # --- properties ---------------------------------------------------------------------
+    @property
+    def scene(self) -> Scene:
+        if self._scene is None:
+            raise SimError("no scene: call reset(family, seed) first")
+        return self._scene
+
+    @property
+    def map(self) -> MapSnapshot:
+        if self._map is None:
+            raise SimError("no map: call reset(family, seed) first")
+        return self._map
+
+    @property
+    def time_s(self) -> float:
+        return round(self._step_index * DT_S, 6)
+
+    @property
+    def step_index(self) -> int:
+        return self._step_index
+
+    @property
+    def pose(self) -> EgoPose:
+        """The ego's integrated state (box centre)."""
+        return self._pose
+
+    # --- observation --------------------------------------------------------------------
+    def _refresh(self) -> None:
+        """Read the context subscription, update histories, ego lane, route progress, signals."""
+        t = self._traci
+        results = t.vehicle.getContextSubscriptionResults(EGO_ID) or {}
+        seen: dict[str, _Seen] = {}
+        now = self.time_s
+        for vid, vals in results.items():
+            if tc.VAR_POSITION not in vals:
+                continue  # e.g. a person type's entry (libsumo merges domains)
+            if vid == EGO_ID:
+                lane = vals.get(tc.VAR_LANE_ID) or None
+                self._ego_lane = lane
+                self._ego_lane_pos_m = float(vals.get(tc.VAR_LANEPOSITION, 0.0))
+                continue
+            seen[vid] = self._convert(vid, vals)
+        self._seen = seen
+        for vid, s in seen.items():
+            hist = self._history.setdefault(vid, deque(maxlen=self._history_len))
+            hist.append(HistoryPoint(t_s=now, x_m=s.x_m, y_m=s.y_m,
+                                     v_mps=_clip(s.v_mps, 0.0, 70.0)))
+        for vid in list(self._history):
+            if vid not in seen:
+                del self._history[vid]  # out of range: history restarts when seen again
+        route = self._route
+        if route is not None:
+            self._route_index = route.index_of(self._ego_lane,
+                                                      previous_index=self._route_index)
+            on_route = (self._ego_lane is not None
+                        and route.index_of(self._ego_lane, previous_index=0)
+                        == self._route_index)
+            pos = self._ego_lane_pos_m if on_route else 0.0
+            self._dist_to_target_m = max(
+                route.dist_to_target_m(self._route_index, pos)
+                + self._vehicle.length_m / 2.0, 0.0)
+        self._signals = self._read_signals()
+
+    def _convert(self, vid: str, vals: dict[int, Any]) -> _Seen:
+        is_vehicle = tc.VAR_VEHICLECLASS in vals
+        yaw = yaw_from_sumo_angle(float(vals.get(tc.VAR_ANGLE, 90.0)))
+        if is_vehicle:
+            length = float(vals.get(tc.VAR_LENGTH, 4.5))
+            width = float(vals.get(tc.VAR_WIDTH, 1.8))
+            kind = _KIND_BY_VCLASS.get(str(vals.get(tc.VAR_VEHICLECLASS, "")), "car")
+            accel = float(vals.get(tc.VAR_ACCELERATION, 0.0))
+            signals = int(vals.get(tc.VAR_SIGNALS, 0))
+            v_max = min(float(vals.get(tc.VAR_ALLOWED_SPEED, 0.0)),
+                        float(vals.get(tc.VAR_MAXSPEED, 70.0)))
+        else:
+            length, width, kind, accel, signals = _PERSON_LENGTH_M, _PERSON_WIDTH_M, \
+                "pedestrian", 0.0, 0
+            v_max = 1.5
+        fx, fy = vals[tc.VAR_POSITION]
+        # SUMO reports the front bumper; our convention is the box centre.
+        x = fx - length / 2.0 * math.cos(yaw)
+        y = fy - length / 2.0 * math.sin(yaw)
+        lane = vals.get(tc.VAR_LANE_ID) or None
+        return _Seen(id=vid, kind=kind, x_m=x, y_m=y, yaw_rad=yaw,
+                     v_mps=float(vals.get(tc.VAR_SPEED, 0.0)),
+                     a_mps2=_clip(accel, -MAX_AGENT_ACCEL_MPS2, MAX_AGENT_ACCEL_MPS2),
+                     length_m=length, width_m=width, lane_id=lane,
+                     lane_pos_m=float(vals.get(tc.VAR_LANEPOSITION, 0.0)),
+                     signals=signals, v_max_mps=v_max)
+
+    def _read_signals(self) -> tuple[LinkSignal, ...]:
+        """Signal-controlled links ahead on the ego route (none at an unsignalized junction)."""
+        try:
+            upcoming = self._traci.vehicle.getNextTLS(EGO_ID)
+        except Exception:  # noqa: BLE001 - the ego may be off the network (keepRoute=2)
+            return ()
+        links = []
+        route = self._route
+        for tls_id, link_index, distance, state in upcoming:
+            from_lane = to_lane = None
+            for lane in self.map.lanes:
+                for succ in lane.successors:
+                    if succ.tls_id == tls_id and succ.link_index == link_index and (
+                            route is None or lane.id in route.lane_ids):
+                        from_lane, to_lane = lane.id, succ.to_lane
+            if from_lane is None or to_lane is None:
+                continue
+            try:
+                switch_s = max(float(self._traci.trafficlight.getNextSwitch(tls_id))
+                               - float(self._traci.simulation.getTime()), 0.0)
+            except Exception:  # noqa: BLE001
+                switch_s = None
+            links.append(LinkSignal(tls_id=tls_id, link_index=int(link_index),
+                                    from_lane=from_lane, to_lane=to_lane,
+                                    state=state if state in "rygGsuoO" else "off",
+                                    time_to_switch_s=switch_s,
+                                    distance_m=max(float(distance), 0.0)))
+        return tuple(links)
+
+    def observe(self, *, required_decision_id: str | None = None) -> Observation:
+        """The observation of the current step (stamp = time_s, seq = step_index)."""
+        if self._map is None:
+            raise SimError("no episode: call reset(family, seed) first")
+        now, seq = self.time_s, self._step_index
+        p = self._pose
+        ego = EgoState(
+            stamp_s=now, seq=seq, x_m=p.x_m, y_m=p.y_m, yaw_rad=p.yaw_rad,
+            v_mps=_clip(p.v_mps, 0.0, 70.0),
+            a_mps2=_clip(p.a_mps2, -MAX_AGENT_ACCEL_MPS2, MAX_AGENT_ACCEL_MPS2),
+            steer_rad=p.steer_rad, length_m=self._vehicle.length_m,
+            width_m=self._vehicle.width_m, lane_id=self._ego_lane,
+            lane_pos_m=max(self._ego_lane_pos_m, 0.0), route_index=self._route_index,
+            dist_to_target_m=self._dist_to_target_m,
+            required_decision_id=required_decision_id,
+        )
+        agents = tuple(
+            Agent(id=s.id, kind=s.kind, x_m=s.x_m, y_m=s.y_m, yaw_rad=s.yaw_rad,
+                  v_mps=_clip(s.v_mps, 0.0, 70.0), a_mps2=s.a_mps2, length_m=s.length_m,
+                  width_m=s.width_m, lane_id=s.lane_id, lane_pos_m=max(s.lane_pos_m, 0.0),
+                  signals=AgentSignals(left=bool(s.signals & _SIG_LEFT),
+                                       right=bool(s.signals & _SIG_RIGHT),
+                                       brake=bool(s.signals & _SIG_BRAKE)),
+                  history=tuple(self._history.get(s.id, ())))
+            for s in sorted(self._seen.values(), key=lambda s: s.id)
+        )
+        return Observation(
+            map=self._map,
+            ego=ego,
+            agents=AgentArray(stamp_s=now, seq=seq, sensing_range_m=self._range_m,
+                              agents=agents),
+            signals=SignalStates(stamp_s=now, seq=seq, links=self._signals),
+        )
+
+    # --- stepping -----------------------------------------------------------------------
+    def step(self, control: Control | None) -> StepInfo:
+        """Apply ``control`` (None = missing / late -> bounded braking) for one step of dt."""
+        if not self._started or self._map is None:
+            raise SimError("simulation not running: call reset(family, seed) first")
+        if self._outcome != "running":
+            raise SimError(f"episode is over ({self._outcome}); call reset() for a new one")
+        late = control is None or control.stamp_s < self.time_s - CONTROL_STALE_S - 1e-9
+        req_a = None if late else control.accel_mps2  # type: ignore[union-attr]
+        req_s = None if late else control.steer_rad  # type: ignore[union-attr]
+        guarded = clamp_control(req_a, req_s, prev_steer_rad=self._pose.steer_rad, dt_s=DT_S,
+                                vehicle=self._vehicle)
+        self._pose = step_bicycle(self._pose, guarded.accel_mps2, guarded.steer_rad, dt_s=DT_S,
+                                  vehicle=self._vehicle)
+        p = self._pose
+        half = self._vehicle.length_m / 2.0
+        t = self._traci
+        try:
+            t.vehicle.moveToXY(EGO_ID, "", -1, p.x_m + half * math.cos(p.yaw_rad),
+                               p.y_m + half * math.sin(p.yaw_rad),
+                               sumo_angle_from_yaw(p.yaw_rad), keepRoute=2)
+            t.simulationStep()
+        except Exception as exc:  # noqa: BLE001 - SUMO errors end the episode, not the process
+            self._step_index += 1
+            self._finish("error", f"SUMO failed: {exc}")
+            return self._info(guarded, late)
+        self._step_index += 1
+        if EGO_ID not in t.vehicle.getIDList():
+            self._finish("error", "SUMO removed the ego (left the network?)")
+            return self._info(guarded, late)
+        self._refresh()
+        ego_box = OrientedBox(p.x_m, p.y_m, p.yaw_rad, self._vehicle.length_m,
+                              self._vehicle.width_m)
+        collided = None
+        for s in sorted(self._seen.values(), key=lambda s: s.id):
+            if boxes_overlap(ego_box, s.box()):
+                collided = s.id
+                break
+        nearby = self._nearby_records(ego_box)
+        self._steps.append(StepRecord(
+            step=self._step_index, t_s=self.time_s, x_m=p.x_m, y_m=p.y_m, yaw_rad=p.yaw_rad,
+            v_mps=p.v_mps, a_mps2=p.a_mps2, steer_rad=p.steer_rad, lane_id=self._ego_lane,
+            route_index=self._route_index, dist_to_target_m=self._dist_to_target_m,
+            control_accel_mps2=req_a if req_a is not None and math.isfinite(req_a) else None,
+            control_steer_rad=req_s if req_s is not None and math.isfinite(req_s) else None,
+            applied_accel_mps2=guarded.accel_mps2, applied_steer_rad=guarded.steer_rad,
+            clamped=guarded.clamped, late=late,
+            decision_id=None if control is None else control.decision_id,
+            control_mode=None if control is None else control.mode,
+            solve_time_ms=None if control is None else control.solve_time_ms,
+            nearby=nearby, collided_with=collided,
+        ))
+        if collided is not None:
+            self._collided_with = collided
+            self._finish("collision", f"ego box overlaps {collided!r}")
+        elif self._in_target():
+            self._reached_at_s = self.time_s
+            self._finish("reached", "")
+        elif self.time_s >= self._max_time_s - 1e-9:
+            self._finish("timeout", f"target not reached within {self._max_time_s:.0f} s")
+        return self._info(guarded, late, collided)
+
+    def _info(self, guarded: Any, late: bool, collided: str | None = None) -> StepInfo:
+        return StepInfo(step_index=self._step_index, time_s=self.time_s, outcome=self._outcome,
+                        clamped=guarded.clamped, late=late,
+                        applied_accel_mps2=guarded.accel_mps2,
+                        applied_steer_rad=guarded.steer_rad, collided_with=collided)
+
+    def _finish(self, outcome: Outcome, detail: str) -> None:
+        self._outcome = outcome
+        self._detail = detail
+
+    def _in_target(self) -> bool:
+        target = self.scene.target
+        p = self._pose
+        if math.hypot(p.x_m - target.center[0], p.y_m - target.center[1]) <= target.radius_m:
+            return True
+        # Passing the target point on a target lane also counts (no skipping the circle).
+        return (self._ego_lane in target.lane_ids
+                and self._ego_lane_pos_m - self._vehicle.length_m / 2.0 >= target.lane_pos_m)
+
+    def _nearby_records(self, ego_box: OrientedBox) -> tuple[NearbyVehicle, ...]:
+        gaps = {vid: box_gap_m(ego_box, s.box()) for vid, s in self._seen.items()}
+        affected = self._affected(gaps)
+        return tuple(
+            NearbyVehicle(id=s.id, kind=s.kind, x_m=s.x_m, y_m=s.y_m, yaw_rad=s.yaw_rad,
+                          v_mps=s.v_mps, v_max_mps=s.v_max_mps, a_mps2=s.a_mps2,
+                          gap_m=gaps[s.id], affected=s.id in affected,
+                          affected_reason=affected.get(s.id, ""))
+            for s in sorted(self._seen.values(), key=lambda s: s.id)
+        )
+
+    def _affected(self, gaps: dict[str, float]) -> dict[str, str]:
+        """Vehicles whose speed the ego holds down (for ``ineff``), with the reason.
+
+        - ``follower``: SUMO's follower of the ego within 50 m;
+        - ``leader``: vehicles within 50 m whose car-following leader is the ego;
+        - ``yielding``: junction foes of the ego within 50 m (SUMO ``getJunctionFoes``)
+          that are braking (a < -0.5 m/s²) or slow (v < 0.5 v_max) with no other
+          leader within 30 m, i.e. nothing but the ego explains their slowing.
+        Never: vehicles stopped at / approaching a red or yellow light within 30 m.
+        """
+        t = self._traci
+        out: dict[str, str] = {}
+        try:
+            follower = t.vehicle.getFollower(EGO_ID, AFFECTED_RADIUS_M)
+            if follower and follower[0] and follower[0] in self._seen:
+                out[follower[0]] = "follower"
+        except Exception:  # noqa: BLE001 - off-network ego has no follower
+            pass
+        for vid, gap in gaps.items():
+            if vid in out or gap > AFFECTED_RADIUS_M or self._seen[vid].kind == "pedestrian":
+                continue
+            leader = self._leader_of(vid, AFFECTED_RADIUS_M)
+            if leader == EGO_ID:
+                out[vid] = "leader"
+        try:
+            foes = t.vehicle.getJunctionFoes(EGO_ID, AFFECTED_RADIUS_M)
+        except Exception:  # noqa: BLE001
+            foes = ()
+        for foe in foes:
+            vid = foe[0]
+            s = self._seen.get(vid)
+            if s is None or vid in out:
+                continue
+            slowing = s.a_mps2 < -0.5 or s.v_mps < 0.5 * s.v_max_mps
+            other_leader = self._leader_of(vid, 30.0)
+            if slowing and other_leader in (None, EGO_ID):
+                out[vid] = "yielding"
+        for vid in list(out):
+            if self._at_red_light(vid):
+                del out[vid]
+        return out
+
+    def _leader_of(self, vid: str, dist_m: float) -> str | None:
+        try:
+            leader = self._traci.vehicle.getLeader(vid, dist_m)
+        except Exception:  # noqa: BLE001
+            return None
+        return leader[0] if leader and leader[0] else None
+
+    def _at_red_light(self, vid: str) -> bool:
+        try:
+            upcoming = self._traci.vehicle.getNextTLS(vid)
+        except Exception:  # noqa: BLE001
+            return False
+        return bool(upcoming) and upcoming[0][2] <= 30.0 and upcoming[0][3] in "rRyYs"
+
+    # --- status and record --------------------------------------------------------------
+    @property
+    def outcome(self) -> Outcome:
+        return self._outcome
+
+    def _time_metric_s(self) -> float:
+        if self._reached_at_s is not None:
+            return self._reached_at_s
+        if self._outcome == "timeout":
+            return self._max_time_s
+        return self.time_s
+
+    def status(self) -> EpisodeStatus:
+        """Outcome so far with the metrics so far."""
+        scene = self.scene
+        return EpisodeStatus(
+            stamp_s=self.time_s, seq=self._step_index, scenario=scene.family, seed=scene.seed,
+            outcome=self._outcome, detail=self._detail[:1000],
+            collided_with=self._collided_with,
+            metrics=compute_metrics(self._steps, time_s=self._time_metric_s()),
+        )
+
+    def record(self) -> EpisodeRecord:
+        """The per-step record so far (``model_dump_json()`` for a file)."""
+        scene = self.scene
+        return EpisodeRecord(
+            family=scene.family, seed=scene.seed, description=scene.description, dt_s=DT_S,
+            max_time_s=self._max_time_s, target_center=scene.target.center,
+            target_radius_m=scene.target.radius_m, outcome=self._outcome,
+            reached_at_s=self._reached_at_s, collided_with=self._collided_with,
+            steps=tuple(self._steps),
+        )

@@ -1,0 +1,63 @@
+"""Scene generation: deterministic per seed, different across seeds, cached, interacting."""
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from lmpc_bridge.scenarios import SceneError, build_scene, families
+
+
+def test_usi_is_registered() -> None:
+    assert "usi" in families()
+
+
+def test_unknown_family_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(SceneError, match="unknown scenario family"):
+        build_scene("no_such_family", 0, work_dir=tmp_path)
+
+
+def test_same_seed_same_scene_in_fresh_dirs(tmp_path: Path) -> None:
+    a = build_scene("usi", 3, work_dir=tmp_path / "a")
+    b = build_scene("usi", 3, work_dir=tmp_path / "b")
+    assert a.route_file.read_text() == b.route_file.read_text()
+    # the net header comment carries netconvert's time stamp and paths; compare the body
+    body_a, body_b = (s.net_file.read_text() for s in (a, b))
+    assert body_a[body_a.index("<net "):] == body_b[body_b.index("<net "):]
+    same_paths = replace(b, net_file=a.net_file, route_file=a.route_file)
+    assert same_paths == a
+    assert a.params == b.params
+
+
+def test_seeds_differ(scene_dir: Path) -> None:
+    routes = {build_scene("usi", s, work_dir=scene_dir).route_file.read_text() for s in range(5)}
+    starts = {build_scene("usi", s, work_dir=scene_dir).ego_depart_pos_m for s in range(5)}
+    assert len(routes) == 5
+    assert len(starts) == 5
+
+
+def test_cache_is_reused(tmp_path: Path) -> None:
+    first = build_scene("usi", 7, work_dir=tmp_path)
+    mtime = first.net_file.stat().st_mtime_ns
+    second = build_scene("usi", 7, work_dir=tmp_path)
+    assert second == first
+    assert second.net_file.stat().st_mtime_ns == mtime  # netconvert did not run again
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_usi_ego_meets_oncoming_traffic(seed: int, scene_dir: Path) -> None:
+    scene = build_scene("usi", seed, work_dir=scene_dir)
+    ego_arrival = float(scene.params["ego_arrival_s"])
+    arrivals = [float(a) for a in str(scene.params["oncoming_arrivals_s"]).split()]
+    assert any(-3.0 <= a - ego_arrival <= 8.0 for a in arrivals)
+    dist = float(scene.params["ego_dist_to_junction_m"])
+    assert 50.0 <= dist <= 70.0
+    assert scene.ego_route_edges == ("W2C", "C2N")
+    assert scene.max_time_s == 200.0
+
+
+def test_some_seeds_leave_a_gap_and_some_do_not(scene_dir: Path) -> None:
+    gaps = [float(build_scene("usi", s, work_dir=scene_dir).params["max_oncoming_gap_s"])
+            for s in range(10)]
+    assert min(gaps) < 5.0 < max(gaps)

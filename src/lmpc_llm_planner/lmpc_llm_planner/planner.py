@@ -1,0 +1,392 @@
+"""The planner core (no ROS): when to ask, what to ask, and what to do with the answer.
+
+``PlannerCore.on_observation`` implements the in-process contract of
+docs/ARCHITECTURE.md (``PlannerLike``). Per observation it runs the rule-based
+emergency pre-evaluation (TTC); it requests a decision when ``period_s`` of sim
+time has passed since the last request (the first at the first observation) or at
+once on an emergency (at most every ``emergency_min_interval_s``). A request builds
+the prompt, calls the backend under a wall deadline, validates and translates the
+reply; on a timeout, transport error or invalid output it re-asks (carrying the
+error) up to ``max_retries`` times, then emits a ``fallback`` decision (baseline
+behaviour). The safety floor is applied to every decision. It never raises on
+backend output.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Literal, Optional
+
+from lmpc_mpc.config import MpcConfig
+from lmpc_mpc.reference import ReferencePathError
+
+from lmpc_msgs_py.messages import Decision
+from lmpc_msgs_py.observation import Observation
+
+from lmpc_llm_planner.backends.base import Backend, BackendReply, DecisionRequest
+from lmpc_llm_planner.config import PlannerConfig
+from lmpc_llm_planner.prompt import build_prompt, estimate_tokens, sanitize_instruction
+from lmpc_llm_planner.scene import Scene, agent_kinematics, build_scene
+from lmpc_llm_planner.schema import (
+    STAGE_ORDER,
+    ActionGuidance,
+    EmergencyDecision,
+    Stage,
+    WeightAdjustment,
+    decision_json_schema,
+)
+from lmpc_llm_planner.validation import (
+    DecisionMeta,
+    apply_safety_floor,
+    merge_stages,
+    parse_decision,
+    translate,
+)
+
+Mode = Literal["normal", "emergency"]
+TIME_EPS_S = 1e-6
+"""Tolerance on sim-time comparisons (stamps are k * 0.1 s in floating point)."""
+
+
+@dataclass(frozen=True)
+class EmergencyCheck:
+    """Result of the rule-based pre-evaluation of one observation."""
+
+    tripped: bool
+    agent_id: Optional[str] = None
+    ttc_s: Optional[float] = None
+    gap_m: Optional[float] = None
+
+
+def emergency_check(obs: Observation, config: PlannerConfig) -> EmergencyCheck:
+    """TTC pre-evaluation: an agent with TTC < ``emergency_ttc_s``, or closing in with a
+    gap below ``emergency_min_gap_m``, trips it (the most urgent one is named)."""
+    worst: Optional[EmergencyCheck] = None
+    for k in agent_kinematics(obs):
+        by_ttc = k.ttc_s is not None and k.ttc_s < config.emergency_ttc_s
+        by_gap = k.closing_speed_mps > 0.1 and k.gap_m < config.emergency_min_gap_m
+        if not (by_ttc or by_gap):
+            continue
+        cand = EmergencyCheck(True, k.agent.id, k.ttc_s, k.gap_m)
+        key = (cand.ttc_s if cand.ttc_s is not None else 1e9, cand.gap_m, k.agent.id)
+        if worst is None or key < (
+            worst.ttc_s if worst.ttc_s is not None else 1e9, worst.gap_m, worst.agent_id
+        ):
+            worst = cand
+    return worst or EmergencyCheck(False)
+
+
+@dataclass(frozen=True)
+class Attempt:
+    """One backend call and what became of it (for the decision log)."""
+
+    stage: Stage
+    prompt_sha256: str
+    tokens_in: int
+    tokens_out: int
+    latency_s: float
+    raw_output: Optional[str]
+    error_kind: Optional[str]
+    error: str
+
+
+@dataclass
+class PlannerCounters:
+    """What happened so far; exposed on the node's status and diagnostics."""
+
+    requests: int = 0
+    decisions: int = 0
+    fallbacks: int = 0
+    emergencies: int = 0
+    backend_calls: int = 0
+    retries: int = 0
+    floor_additions: int = 0
+    errors: Counter[str] = field(default_factory=Counter)
+    """By error kind: timeout, transport, prose, fenced, unknown_agent, ..., scene, log."""
+
+    def as_dict(self) -> dict[str, int]:
+        out = {
+            "requests": self.requests, "decisions": self.decisions, "fallbacks": self.fallbacks,
+            "emergencies": self.emergencies, "backend_calls": self.backend_calls,
+            "retries": self.retries, "floor_additions": self.floor_additions,
+        }
+        out.update({f"error:{k}": v for k, v in sorted(self.errors.items())})
+        return out
+
+
+class _Timeout(Exception):
+    pass
+
+
+def _call_with_deadline(
+    backend: Backend, request: DecisionRequest, deadline_s: float
+) -> BackendReply:
+    """Call the backend in a daemon thread; a reply later than the deadline is discarded.
+
+    A hung call leaves its thread behind (daemon, so it never blocks exit) — the
+    price of not trusting a backend to honour its own timeout.
+    """
+    box: dict[str, Any] = {}
+
+    def run() -> None:
+        try:
+            box["reply"] = backend.complete(request)
+        except Exception as exc:  # noqa: BLE001 - any backend fault is a transport error
+            box["error"] = f"{type(exc).__name__}: {exc}"
+
+    t0 = time.perf_counter()
+    worker = threading.Thread(target=run, name="planner-backend", daemon=True)
+    worker.start()
+    worker.join(deadline_s)
+    elapsed = time.perf_counter() - t0
+    if worker.is_alive():
+        return BackendReply(
+            text=None, latency_s=elapsed, error_kind="timeout",
+            error=f"no reply within the {deadline_s:.1f} s deadline",
+        )
+    if "error" in box:
+        return BackendReply(text=None, latency_s=elapsed, error_kind="transport",
+                            error=box["error"])
+    reply = box.get("reply")
+    if not isinstance(reply, BackendReply):
+        return BackendReply(text=None, latency_s=elapsed, error_kind="transport",
+                            error=f"backend returned {type(reply).__name__}, not BackendReply")
+    if reply.ok and elapsed > deadline_s:
+        return BackendReply(text=None, latency_s=elapsed, error_kind="timeout",
+                            error=f"reply after {elapsed:.2f} s, deadline {deadline_s:.1f} s")
+    return reply
+
+
+class PlannerCore:
+    """Decisions from observations; see the module docstring."""
+
+    def __init__(
+        self,
+        config: PlannerConfig,
+        backend: Backend,
+        mpc_config: MpcConfig,
+        *,
+        log_path: Optional[str | Path] = None,
+    ) -> None:
+        self.config = config
+        self.backend = backend
+        self.mpc_config = mpc_config
+        self.counters = PlannerCounters()
+        self.instruction: Optional[str] = None
+        self.last_decision: Optional[Decision] = None
+        self.last_emergency: EmergencyCheck = EmergencyCheck(False)
+        self._t_last_request: Optional[float] = None
+        self._t_last_emergency: Optional[float] = None
+        self._n = 0
+        path = log_path if log_path is not None else config.decision_log
+        self._log_path = Path(path) if path else None
+
+    # -- inputs ---------------------------------------------------------------------------
+    def on_instruction(self, text: str) -> None:
+        """Store the user's instruction (untrusted text: it only goes into the prompt)."""
+        cleaned = sanitize_instruction(text)
+        self.instruction = cleaned or None
+
+    def due(self, obs: Observation) -> Optional[Mode]:
+        """Which request (if any) this observation triggers; updates the emergency state."""
+        t = obs.stamp_s
+        if self._t_last_request is not None and t + TIME_EPS_S < self._t_last_request:
+            # Time went backwards: a new episode (or a restarted bridge). Start afresh.
+            self._t_last_request = None
+            self._t_last_emergency = None
+        check = emergency_check(obs, self.config)
+        self.last_emergency = check
+        if check.tripped and (
+            self._t_last_emergency is None
+            or t - self._t_last_emergency >= self.config.emergency_min_interval_s - TIME_EPS_S
+        ):
+            return "emergency"
+        if self._t_last_request is None or (
+            t - self._t_last_request >= self.config.period_s - TIME_EPS_S
+        ):
+            return "normal"
+        return None
+
+    def on_observation(self, obs: Observation) -> Optional[Decision]:
+        """A new decision when one is due (see :meth:`due`), else None. Never raises on
+        backend output."""
+        mode = self.due(obs)
+        if mode is None:
+            return None
+        t = obs.stamp_s
+        self._t_last_request = t
+        if mode == "emergency":
+            self._t_last_emergency = t
+            self.counters.emergencies += 1
+        self.counters.requests += 1
+        try:
+            scene = build_scene(
+                obs, lookahead_m=self.config.lookahead_m,
+                max_agents=self.config.max_agents_in_prompt,
+            )
+        except (ReferencePathError, ValueError, KeyError, IndexError) as exc:
+            # No candidates means no decision can be expressed; the MPC keeps its
+            # current decision or baseline. Counted and reported, never raised.
+            self.counters.errors["scene"] += 1
+            self._log({"stamp_s": t, "mode": mode, "error_kind": "scene", "error": str(exc)})
+            return None
+        return self._decide(scene, mode)
+
+    # -- one request ----------------------------------------------------------------------
+    def _next_meta(self, scene: Scene, *, source: str, mode: Mode, latency_s: float,
+                   tokens_in: int, tokens_out: int) -> DecisionMeta:
+        self._n += 1
+        stamp_ms = int(round(scene.obs.stamp_s * 1000.0))
+        return DecisionMeta(
+            decision_id=f"{stamp_ms}-{self._n}",
+            seq=self._n,
+            source=source,
+            mode=mode,
+            latency_s=min(
+                self.config.fixed_latency_s if self.config.fixed_latency_s is not None
+                else latency_s,
+                600.0,
+            ),
+            tokens_in=tokens_in,
+            tokens_out=tokens_out,
+            ttl_s=self.config.ttl_s,
+        )
+
+    def _ask(self, scene: Scene, mode: Mode, stage: Stage, prior: dict[str, Any],
+             attempts: list[Attempt]) -> Any:
+        """Ask for one stage (or all) with re-asks; the validated wire object or None."""
+        retry_error: Optional[str] = None
+        for attempt in range(self.config.max_retries + 1):
+            if attempt:
+                self.counters.retries += 1
+            prompt = build_prompt(
+                scene, mpc_config=self.mpc_config, mode=mode, stage=stage,
+                instruction=self.instruction, previous=self.last_decision,
+                retry_error=retry_error, prior_stages=prior or None,
+                chars_per_token=self.config.chars_per_token,
+            )
+            request = DecisionRequest(
+                prompt=prompt.text, mode=mode, scene=scene,
+                accel_intervals_mps2=self.mpc_config.accel_intervals_mps2,
+                steer_intervals_rad=self.mpc_config.steer_intervals_rad,
+                json_schema=decision_json_schema(mode=mode, stage=stage), stage=stage,
+                prior_stages=dict(prior), instruction=self.instruction,
+                previous=self.last_decision, retry_error=retry_error,
+                tokens_estimate=prompt.tokens_estimate, deadline_s=self.config.deadline_s,
+            )
+            self.counters.backend_calls += 1
+            reply = _call_with_deadline(self.backend, request, self.config.deadline_s)
+            tokens_in = reply.tokens_in or prompt.tokens_estimate
+            tokens_out = reply.tokens_out or estimate_tokens(
+                reply.text or "", chars_per_token=self.config.chars_per_token
+            )
+            sha = hashlib.sha256(prompt.text.encode("utf-8")).hexdigest()
+            if not reply.ok:
+                kind, msg = reply.error_kind or "transport", reply.error or "no text"
+                wire = None
+            else:
+                parsed = parse_decision(
+                    reply.text or "", request=request, max_chars=self.config.max_output_chars
+                )
+                kind, msg, wire = parsed.error_kind, parsed.message, parsed.wire
+            attempts.append(Attempt(stage, sha, tokens_in, tokens_out, reply.latency_s,
+                                    reply.text, kind, msg))
+            if wire is not None:
+                return wire
+            self.counters.errors[kind or "unknown"] += 1
+            retry_error = f"{kind}: {msg}"
+        return None
+
+    def _decide(self, scene: Scene, mode: Mode) -> Decision:
+        attempts: list[Attempt] = []
+        t0 = time.perf_counter()
+        wire: Any = None
+        if self.config.stages == "single":
+            wire = self._ask(scene, mode, "all", {}, attempts)
+        else:
+            answers = []
+            prior: dict[str, Any] = {}
+            stages = STAGE_ORDER[1:] if mode == "emergency" else STAGE_ORDER
+            for stage in stages:
+                ans = self._ask(scene, mode, stage, prior, attempts)
+                if ans is None:
+                    answers = []
+                    break
+                answers.append(ans)
+                prior[stage] = getattr(ans, stage).model_dump()
+            if answers:
+                wire = merge_stages(answers)
+        latency_s = time.perf_counter() - t0
+        tokens_in = sum(a.tokens_in for a in attempts)
+        tokens_out = sum(a.tokens_out for a in attempts)
+        if wire is None:
+            decision = self._fallback(scene, mode, latency_s, tokens_in, tokens_out, attempts)
+        else:
+            meta = self._next_meta(scene, source=self.backend.name, mode=mode,
+                                   latency_s=latency_s, tokens_in=tokens_in,
+                                   tokens_out=tokens_out)
+            decision = translate(wire, scene=scene, mpc_config=self.mpc_config, meta=meta)
+        floor = apply_safety_floor(
+            decision, scene=scene, ttc_s=self.config.safety_floor_ttc_s,
+            dist_m=self.config.safety_floor_dist_m, lookahead_m=self.config.lookahead_m,
+        )
+        decision = floor.decision
+        self.counters.floor_additions += len(floor.added)
+        self.counters.decisions += 1
+        self.last_decision = decision
+        self._log({
+            "decision_id": decision.decision_id,
+            "stamp_s": decision.stamp_s,
+            "mode": mode,
+            "source": decision.source,
+            "latency_s": decision.latency_s,
+            "measured_latency_s": latency_s,
+            "tokens_in": tokens_in,
+            "tokens_out": tokens_out,
+            "floor_added": list(floor.added),
+            "attempts": [a.__dict__ for a in attempts],
+            "error_kind": None if wire is not None else (
+                attempts[-1].error_kind if attempts else "none"
+            ),
+            "decision": decision.model_dump(mode="json", by_alias=True),
+        })
+        return decision
+
+    def _fallback(self, scene: Scene, mode: Mode, latency_s: float, tokens_in: int,
+                  tokens_out: int, attempts: list[Attempt]) -> Decision:
+        """Baseline behaviour: route candidate, every offered agent attended with its
+        closest-heading prediction, neutral bias, normal weights."""
+        self.counters.fallbacks += 1
+        reason = attempts[-1].error_kind if attempts else "no attempt"
+        wire = EmergencyDecision(
+            reasoning=f"Fallback (baseline behaviour) after {len(attempts)} failed call(s); "
+                      f"last error: {reason}.",
+            action_guidance=ActionGuidance(
+                accel_interval=self.mpc_config.neutral_accel_index,
+                steer_interval=self.mpc_config.neutral_steer_index,
+            ),
+            weight_adjustment=WeightAdjustment(
+                tracking="normal", action="normal", smoothness="normal", safety="normal"
+            ),
+        )
+        meta = self._next_meta(scene, source="fallback", mode=mode, latency_s=latency_s,
+                               tokens_in=tokens_in, tokens_out=tokens_out)
+        return translate(wire, scene=scene, mpc_config=self.mpc_config, meta=meta)
+
+    # -- decision log ---------------------------------------------------------------------
+    def _log(self, record: dict[str, Any]) -> None:
+        if self._log_path is None:
+            return
+        try:
+            self._log_path.parent.mkdir(parents=True, exist_ok=True)
+            with self._log_path.open("a", encoding="utf-8") as fh:
+                fh.write(json.dumps(record, separators=(",", ":"), default=str) + "\n")
+        except OSError:
+            # A full disk must not stop the car: count it, keep deciding.
+            self.counters.errors["log"] += 1
+

@@ -1,0 +1,63 @@
+"""``llm_planner`` node: a thin ROS wrapper around :class:`PlannerCore`.
+
+Parameters (mapped once into ``PlannerConfig``): ``config_file`` ('' = packaged
+default), ``backend`` ('' = from the file), ``ego_id`` ('' = single ego),
+``run_dir`` (decision log at ``run_dir/decisions.jsonl`` when set), and ROS's own
+``use_sim_time``. Topics and timing: see ``decision_node.py``.
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any, Optional
+
+from lmpc_mpc.config import load_mpc_config
+from rcl_interfaces.msg import ParameterDescriptor
+
+from lmpc_msgs_py.base_node import run_node
+
+from lmpc_llm_planner.backends import make_backend
+from lmpc_llm_planner.config import load_planner_config
+from lmpc_llm_planner.decision_node import DecisionNode
+from lmpc_llm_planner.planner import PlannerCore
+
+
+class PlannerNode(DecisionNode):
+    """Requests LLM decisions on sim time and publishes them with the sync status."""
+
+    def __init__(self) -> None:
+        super().__init__("llm_planner")
+        desc = ParameterDescriptor
+        self.declare_parameter("config_file", "", desc(description="planner YAML ('' = default)"))
+        self.declare_parameter("backend", "", desc(description="backend override ('' = file)"))
+        self.declare_parameter("run_dir", "", desc(description="run folder for decisions.jsonl"))
+        self.declare_parameter("mpc_config_file", "",
+                               desc(description="MPC YAML for intervals / pools ('' = default)"))
+        overrides: dict[str, Any] = {}
+        backend = self.get_parameter("backend").value
+        if backend:
+            overrides["backend"] = backend
+        run_dir = self.get_parameter("run_dir").value
+        if run_dir:
+            overrides["decision_log"] = str(Path(run_dir) / "decisions.jsonl")
+        config = load_planner_config(self.get_parameter("config_file").value or None,
+                                     overrides=overrides)
+        mpc_config = load_mpc_config(self.get_parameter("mpc_config_file").value or None)
+        self.planner = PlannerCore(config, make_backend(config), mpc_config)
+        self.core = self.planner
+        self.start()
+        self.get_logger().info(
+            f"backend={config.backend} stages={config.stages} period={config.period_s} s "
+            f"log={config.decision_log or 'off'}"
+        )
+
+    def core_counters(self) -> dict[str, Any]:
+        return dict(self.planner.counters.as_dict())
+
+
+def main(args: Optional[list[str]] = None) -> int:
+    return run_node(PlannerNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,271 @@
+"""What the planner knows about one observation, computed once and shared by the
+prompt generator, the rules backend, the safety floor and the emergency check.
+
+Plain Python + numpy, no ROS. Geometry here is a deliberate APPROXIMATION for
+decision making (the MPC does the exact safety work):
+- time to collision (TTC) extrapolates both vehicles at constant velocity along
+  their current headings; an agent counts as on a collision course when the miss
+  distance at closest approach is below half the summed widths (lengths, for
+  crossing traffic) plus a margin;
+- box gaps use each box's support (half extent) along the line of sight.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+from lmpc_mpc.reference import Candidate, candidates_for_pose, closest_heading, route_candidate
+
+from lmpc_msgs_py.messages import Agent, Lane
+from lmpc_msgs_py.observation import Observation
+
+SAME_LANE_LATERAL_M = 1.8
+"""|lateral offset| below which an agent counts as in the ego's lane (half a lane)."""
+SIDE_LONGITUDINAL_M = 3.0
+"""|longitudinal offset| below which an agent counts as beside the ego."""
+MISS_MARGIN_M = 1.0
+"""Extra lateral clearance for the collision-course test."""
+MIN_CLOSING_MPS = 0.1
+STRAIGHT_LINE_HORIZON_S = 5.0
+"""Length (in time at the agent's speed) of the straight-line candidate of an off-map agent."""
+
+
+def wrap_rad(angle_rad: float) -> float:
+    """Wrap an angle to (-pi, pi]."""
+    a = math.fmod(angle_rad + math.pi, 2.0 * math.pi)
+    if a <= 0.0:
+        a += 2.0 * math.pi
+    return a - math.pi
+
+
+def _support_m(length_m: float, width_m: float, yaw_rad: float, dir_rad: float) -> float:
+    # Half extent of a box along the direction dir_rad.
+    th = dir_rad - yaw_rad
+    return 0.5 * length_m * abs(math.cos(th)) + 0.5 * width_m * abs(math.sin(th))
+
+
+@dataclass(frozen=True)
+class Kinematics:
+    """Ego-relative kinematics of one agent (no map, cheap enough for every observation)."""
+
+    agent: Agent
+    distance_m: float
+    """Centre to centre."""
+    gap_m: float
+    """Approximate box-to-box gap (>= 0)."""
+    longitudinal_m: float
+    """Ahead of the ego (+) or behind (-), in the ego frame."""
+    lateral_m: float
+    """Left of the ego (+) or right (-), in the ego frame."""
+    heading_rel_rad: float
+    """Agent yaw minus ego yaw, wrapped."""
+    closing_speed_mps: float
+    """Rate at which the centre distance shrinks (negative: moving apart)."""
+    ttc_s: Optional[float]
+    """Time to collision when on a collision course (constant velocities), else None."""
+
+    @property
+    def relation(self) -> str:
+        """Where the agent is, in words: ahead / behind / left / right / ahead-left ..."""
+        lon, lat = self.longitudinal_m, self.lateral_m
+        if abs(lat) < SAME_LANE_LATERAL_M:
+            return "ahead" if lon >= 0.0 else "behind"
+        side = "left" if lat > 0.0 else "right"
+        if abs(lon) < SIDE_LONGITUDINAL_M:
+            return side
+        return f"{'ahead' if lon > 0.0 else 'behind'}-{side}"
+
+    @property
+    def motion(self) -> str:
+        """Its heading relative to the ego, in words."""
+        h = self.heading_rel_rad
+        if abs(h) < math.radians(30):
+            return "same direction"
+        if abs(h) > math.radians(150):
+            return "oncoming"
+        return "crossing from the " + ("right" if h > 0.0 else "left")
+
+
+def agent_kinematics(obs: Observation) -> tuple[Kinematics, ...]:
+    """Kinematics of every observed agent, nearest first (ties by id: deterministic)."""
+    ego = obs.ego
+    ce, se = math.cos(ego.yaw_rad), math.sin(ego.yaw_rad)
+    ve = np.array([ego.v_mps * ce, ego.v_mps * se])
+    out = []
+    for ag in obs.agents.agents:
+        p = np.array([ag.x_m - ego.x_m, ag.y_m - ego.y_m])
+        dist = float(np.hypot(*p))
+        va = np.array([ag.v_mps * math.cos(ag.yaw_rad), ag.v_mps * math.sin(ag.yaw_rad)])
+        vrel = va - ve
+        los = math.atan2(p[1], p[0]) if dist > 1e-9 else ego.yaw_rad
+        gap = max(
+            0.0,
+            dist
+            - _support_m(ego.length_m, ego.width_m, ego.yaw_rad, los)
+            - _support_m(ag.length_m, ag.width_m, ag.yaw_rad, los),
+        )
+        closing = float(-(p @ vrel) / dist) if dist > 1e-9 else 0.0
+        rel = wrap_rad(ag.yaw_rad - ego.yaw_rad)
+        ttc = None
+        vv = float(vrel @ vrel)
+        if closing > MIN_CLOSING_MPS and vv > 1e-9:
+            t_star = float(-(p @ vrel) / vv)
+            miss = float(np.hypot(*(p + vrel * t_star)))
+            crossing = abs(math.sin(rel))
+            radius = (
+                0.5 * (ego.width_m + ag.width_m)
+                + MISS_MARGIN_M
+                + 0.5 * crossing * max(0.0, ego.length_m + ag.length_m - ego.width_m - ag.width_m)
+            )
+            if miss < radius:
+                ttc = gap / closing
+        out.append(
+            Kinematics(
+                agent=ag,
+                distance_m=dist,
+                gap_m=gap,
+                longitudinal_m=float(p[0] * ce + p[1] * se),
+                lateral_m=float(-p[0] * se + p[1] * ce),
+                heading_rel_rad=rel,
+                closing_speed_mps=closing,
+                ttc_s=ttc,
+            )
+        )
+    out.sort(key=lambda k: (k.distance_m, k.agent.id))
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class AgentView:
+    """An agent as offered to the decision maker: kinematics plus its three candidates."""
+
+    kin: Kinematics
+    candidates: tuple[Candidate, ...]
+    """Offered candidates; ``candidates[i].candidate_id == i``."""
+    closest_heading_id: int
+    """Index of the candidate closest to the agent's heading (baseline prediction)."""
+
+    @property
+    def agent(self) -> Agent:
+        return self.kin.agent
+
+    @property
+    def id(self) -> str:
+        return self.kin.agent.id
+
+
+@dataclass(frozen=True)
+class Scene:
+    """One observation, analysed for decision making."""
+
+    obs: Observation
+    ego_candidates: tuple[Candidate, ...]
+    """Offered ego candidates; ``ego_candidates[i].candidate_id == i``; at least one."""
+    route_candidate_id: int
+    """Index of the ego candidate that follows the route."""
+    agents: tuple[AgentView, ...]
+    """The agents offered in the prompt (nearest first, within sensing range, capped)."""
+    all_kinematics: tuple[Kinematics, ...]
+    """Every observed agent (the safety floor looks at all of them)."""
+    lanes: Mapping[str, Lane]
+
+    def agent(self, agent_id: str) -> Optional[AgentView]:
+        for view in self.agents:
+            if view.id == agent_id:
+                return view
+        return None
+
+    @property
+    def agent_ids(self) -> tuple[str, ...]:
+        return tuple(v.id for v in self.agents)
+
+
+def _renumber(cands: Sequence[Candidate]) -> tuple[Candidate, ...]:
+    return tuple(
+        c if c.candidate_id == i else replace(c, candidate_id=i) for i, c in enumerate(cands[:3])
+    )
+
+
+def _straight_line(agent: Agent) -> Candidate:
+    # Off-map agents (pedestrians, a car off the network) get one straight-line
+    # candidate along their heading (an approximation, said in the label).
+    length = max(5.0, agent.v_mps * STRAIGHT_LINE_HORIZON_S)
+    c, s = math.cos(agent.yaw_rad), math.sin(agent.yaw_rad)
+    pts = tuple(
+        (agent.x_m + f * length * c, agent.y_m + f * length * s) for f in (0.0, 0.5, 1.0)
+    )
+    return Candidate(
+        candidate_id=0, control_points=pts, label="keep its current heading (off the lane map)",
+        lane_ids=(),
+    )
+
+
+def agent_candidates(obs: Observation, agent: Agent, *, lookahead_m: float) -> tuple[Candidate, ...]:
+    """The (up to three) candidates of an agent, renumbered 0..n-1; never empty."""
+    cands = candidates_for_pose(
+        obs.map, x_m=agent.x_m, y_m=agent.y_m, yaw_rad=agent.yaw_rad, lane_id=agent.lane_id,
+        lookahead_m=lookahead_m,
+    )
+    return _renumber(cands) if cands else (_straight_line(agent),)
+
+
+def _mean_distance_m(a: Candidate, b: Candidate) -> float:
+    pa, pb = a.sample(20), b.sample(20)
+    return float(np.mean(np.hypot(pa[:, 0] - pb[:, 0], pa[:, 1] - pb[:, 1])))
+
+
+def ego_candidates(obs: Observation, *, lookahead_m: float) -> tuple[tuple[Candidate, ...], int]:
+    """The ego's offered candidates and the index of the one following its route.
+
+    When none of the nearest-lane candidates follows the route (no shared route lane
+    ahead), the route candidate replaces the last one, so the route is always offered.
+    """
+    ego = obs.ego
+    cands = list(
+        candidates_for_pose(
+            obs.map, x_m=ego.x_m, y_m=ego.y_m, yaw_rad=ego.yaw_rad, lane_id=ego.lane_id,
+            lookahead_m=lookahead_m,
+        )
+    )
+    # A candidate on no lane (the ego off the lane map) cannot be tracked as a manoeuvre.
+    cands = [c for c in cands if c.lane_ids][:3]
+    route_c = route_candidate(obs.map, ego, lookahead_m=lookahead_m)
+    if not cands:
+        return (replace(route_c, candidate_id=0),), 0
+    ahead = obs.map.ego_route[ego.route_index:]
+    route_set = set(ahead)
+    # Lanes beyond the current one decide (every candidate shares the current lane).
+    scores = [
+        (
+            len(route_set.intersection(c.lane_ids) - {ego.lane_id}),
+            -_mean_distance_m(c, route_c),
+        )
+        for c in cands
+    ]
+    best = max(range(len(cands)), key=lambda i: (scores[i], -i))
+    if scores[best][0] == 0 and -scores[best][1] > 2.0:
+        cands[-1] = route_c
+        best = len(cands) - 1
+    return _renumber(cands), best
+
+
+def build_scene(obs: Observation, *, lookahead_m: float, max_agents: int) -> Scene:
+    """Analyse ``obs``: ego candidates, route candidate, nearest agents with candidates."""
+    kins = agent_kinematics(obs)
+    in_range = [k for k in kins if k.distance_m <= obs.agents.sensing_range_m][:max_agents]
+    views = []
+    for k in in_range:
+        cands = agent_candidates(obs, k.agent, lookahead_m=lookahead_m)
+        best = closest_heading(list(cands), k.agent.yaw_rad)
+        views.append(AgentView(kin=k, candidates=cands, closest_heading_id=best.candidate_id))
+    ego_c, route_id = ego_candidates(obs, lookahead_m=lookahead_m)
+    return Scene(
+        obs=obs,
+        ego_candidates=ego_c,
+        route_candidate_id=route_id,
+        agents=tuple(views),
+        all_kinematics=kins,
+        lanes={lane.id: lane for lane in obs.map.lanes},
+    )

@@ -1,0 +1,263 @@
+"""The MPC's one validated configuration (STYLE.md 4), loaded once from YAML.
+
+:class:`MpcConfig` holds the horizon, the solver choice, the weight pool the
+planner picks levels from, the action intervals whose midpoints are the bias
+``A_hat``, and the safety-distance and freshness parameters. The planner imports
+this module to know which levels and intervals exist; it never sends numbers.
+"""
+from __future__ import annotations
+
+from functools import cached_property
+from pathlib import Path
+from typing import Generic, Literal, TypeVar
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from lmpc_msgs_py.messages import WeightLevels
+
+DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent / "config" / "mpc.yaml"
+
+_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class MpcConfigError(ValueError):
+    """The MPC configuration file is missing, unreadable or invalid (names the field)."""
+
+
+class TrackingWeights(BaseModel):
+    """Diagonal ``W_x``, ``W_v``, ``W_theta`` of the tracking cost ``C_trk``."""
+
+    model_config = _STRICT
+    w_pos: float = Field(ge=0.0)
+    """Weight on the squared x and y position error to the reference [1/m^2]."""
+    w_v: float = Field(ge=0.0)
+    """Weight on the squared speed error [1/(m/s)^2]."""
+    w_yaw: float = Field(ge=0.0)
+    """Weight on the squared (wrapped) yaw error [1/rad^2]."""
+    w_steer: float = Field(ge=0.0)
+    """Weight on the squared error to the reference's curvature steer angle [1/rad^2]."""
+
+
+class ActionWeights(BaseModel):
+    """Diagonal ``W_s`` of ``(A - A_hat)^T W_s (A - A_hat)``."""
+
+    model_config = _STRICT
+    w_accel: float = Field(ge=0.0)
+    """Weight on the squared distance of the acceleration to its bias [1/(m/s^2)^2]."""
+    w_steer: float = Field(ge=0.0)
+    """Weight on the squared distance of the steer angle to its bias [1/rad^2]."""
+
+
+class SmoothnessWeights(BaseModel):
+    """Diagonal ``W_g`` (first difference) and ``W_l`` (second difference) of ``A``."""
+
+    model_config = _STRICT
+    w_g_accel: float = Field(ge=0.0)
+    """Weight on the squared step-to-step change of the acceleration."""
+    w_g_steer: float = Field(ge=0.0)
+    """Weight on the squared step-to-step change of the steer angle."""
+    w_l_accel: float = Field(ge=0.0)
+    """Weight on the squared second difference of the acceleration."""
+    w_l_steer: float = Field(ge=0.0)
+    """Weight on the squared second difference of the steer angle."""
+
+
+class SafetyWeights(BaseModel):
+    """Scalar ``w_saf`` of ``C_saf = w_saf sum max(0, d_hat - d)^2``."""
+
+    model_config = _STRICT
+    w_saf: float = Field(ge=0.0)
+    """Weight on the squared shortfall of the distance to each attended agent [1/m^2]."""
+
+
+W = TypeVar("W", bound=BaseModel)
+
+
+class LevelSet(BaseModel, Generic[W]):
+    """The three levels of one weight group."""
+
+    model_config = _STRICT
+    low: W
+    """Weights when the planner asks for less of this term."""
+    normal: W
+    """Weights of the baseline and of a decision that leaves the group alone."""
+    high: W
+    """Weights when the planner asks for more of this term."""
+
+    def at(self, level: Literal["low", "normal", "high"]) -> W:
+        """The weights of ``level``."""
+        return getattr(self, level)
+
+
+class WeightPool(BaseModel):
+    """The four groups of weights the planner chooses levels from (paper stage 3)."""
+
+    model_config = _STRICT
+    tracking: LevelSet[TrackingWeights]
+    """Tracking group: position, speed, yaw / steer errors."""
+    action: LevelSet[ActionWeights]
+    """Action group: pull of the control towards the bias ``A_hat``."""
+    smoothness: LevelSet[SmoothnessWeights]
+    """Smoothness group: first and second differences of the control."""
+    safety: LevelSet[SafetyWeights]
+    """Safety group: one-sided distance penalty to attended agents."""
+
+
+class ResolvedWeights(BaseModel):
+    """The numbers of one choice of levels (what the solver receives as parameters)."""
+
+    model_config = _STRICT
+    tracking: TrackingWeights
+    action: ActionWeights
+    smoothness: SmoothnessWeights
+    safety: SafetyWeights
+
+
+Interval = tuple[float, float]
+
+
+def _check_intervals(name: str, intervals: tuple[Interval, ...]) -> None:
+    if len(intervals) < 2:
+        raise ValueError(f"{name}: needs at least 2 intervals, got {len(intervals)}")
+    for i, (lo, hi) in enumerate(intervals):
+        if not lo < hi:
+            raise ValueError(f"{name}[{i}]: lower bound {lo} must be below upper bound {hi}")
+        if i and lo < intervals[i - 1][1] - 1e-9:
+            raise ValueError(f"{name}[{i}]: intervals must be sorted and not overlap")
+    if not any(lo <= 0.0 <= hi for lo, hi in intervals):
+        raise ValueError(f"{name}: no interval contains 0 (a neutral interval is required)")
+
+
+class MpcConfig(BaseModel):
+    """Everything the MPC needs besides the vehicle (see ``config/mpc.yaml``)."""
+
+    model_config = _STRICT
+
+    horizon: int = Field(30, ge=2, le=200)
+    """Number of control steps N in the horizon."""
+    dt_s: float = Field(0.1, gt=0.0, le=1.0)
+    """Step length of the model and the control loop [s]."""
+    solver: Literal["fatrop", "ipopt"] = "fatrop"
+    """NLP solver: FATROP (stage-wise, fast) or IPOPT (general, slower)."""
+    time_budget_s: float = Field(0.05, gt=0.0, le=10.0)
+    """Wall time one solve may take; a slower solve counts as a failure [s]."""
+    max_iterations: int = Field(60, ge=1, le=10000)
+    """Iteration cap of the NLP solver per solve."""
+    weight_pool: WeightPool
+    """The levels of the four weight groups (the planner picks names, never numbers)."""
+    accel_intervals_mps2: tuple[Interval, ...]
+    """Acceleration intervals of the action guidance, sorted; midpoints are the bias [m/s^2]."""
+    steer_intervals_rad: tuple[Interval, ...]
+    """Steer-angle intervals of the action guidance, sorted; midpoints are the bias [rad]."""
+    reference_accel_mps2: float = Field(1.5, gt=0.0, le=10.0)
+    """Acceleration the reference speed profile assumes from the current speed [m/s^2]."""
+    reference_lat_accel_mps2: float = Field(2.5, gt=0.0, le=10.0)
+    """Lateral acceleration bound that caps the reference speed in curves [m/s^2]."""
+    lookahead_m: float = Field(60.0, gt=5.0, le=500.0)
+    """Length of the reference candidates ahead of a vehicle [m]."""
+    safety_gap_m: float = Field(2.0, ge=0.0, le=50.0)
+    """Standstill gap between boxes in the desired distance d_hat [m]."""
+    safety_headway_s: float = Field(1.0, ge=0.0, le=10.0)
+    """Time headway of d_hat = gap + headway * v + half-lengths (agents ahead only) [s]."""
+    safety_lateral_gap_m: float = Field(0.6, ge=0.0, le=10.0)
+    """Side clearance between boxes; with the half-widths it scales the lateral axis [m]."""
+    sensing_range_m: float = Field(80.0, gt=0.0, le=1000.0)
+    """Agents within this distance are attended in baseline mode [m]."""
+    max_agents: int = Field(20, ge=0, le=100)
+    """Most obstacle slots one problem holds (agents plus a red-light stop line); the
+    nearest are kept."""
+    agent_slot_sizes: tuple[int, ...] = (5, 10, 20)
+    """Compiled problem sizes (agent slots); the smallest that fits is used."""
+    shifted_plan_steps: int = Field(3, ge=0, le=50)
+    """Steps the shifted previous plan is used after a solver failure, then brake."""
+    stale_after_s: float = Field(0.3, gt=0.0, le=10.0)
+    """Ego / agents older than this (sim time) are stale: the controller brakes [s]."""
+
+    @model_validator(mode="after")
+    def _check(self) -> "MpcConfig":
+        _check_intervals("accel_intervals_mps2", self.accel_intervals_mps2)
+        _check_intervals("steer_intervals_rad", self.steer_intervals_rad)
+        if not self.agent_slot_sizes or list(self.agent_slot_sizes) != sorted(
+            self.agent_slot_sizes
+        ):
+            raise ValueError("agent_slot_sizes: must be a non-empty ascending list")
+        if self.agent_slot_sizes[-1] < self.max_agents:
+            raise ValueError(
+                f"agent_slot_sizes: largest ({self.agent_slot_sizes[-1]}) must hold "
+                f"max_agents ({self.max_agents})"
+            )
+        return self
+
+    # -- helpers -------------------------------------------------------------------------
+    @cached_property
+    def neutral_accel_index(self) -> int:
+        """Index of the acceleration interval that contains 0."""
+        return _neutral(self.accel_intervals_mps2)
+
+    @cached_property
+    def neutral_steer_index(self) -> int:
+        """Index of the steer interval that contains 0."""
+        return _neutral(self.steer_intervals_rad)
+
+    def bias_for(self, accel_index: int, steer_index: int) -> tuple[float, float]:
+        """Bias ``A_hat = (accel_mps2, steer_rad)``: midpoints of the chosen intervals.
+
+        Raises :class:`IndexError` naming the list when an index is out of range.
+        """
+        if not 0 <= accel_index < len(self.accel_intervals_mps2):
+            raise IndexError(
+                f"accel_index {accel_index} out of range 0..{len(self.accel_intervals_mps2) - 1}"
+            )
+        if not 0 <= steer_index < len(self.steer_intervals_rad):
+            raise IndexError(
+                f"steer_index {steer_index} out of range 0..{len(self.steer_intervals_rad) - 1}"
+            )
+        a_lo, a_hi = self.accel_intervals_mps2[accel_index]
+        s_lo, s_hi = self.steer_intervals_rad[steer_index]
+        return (0.5 * (a_lo + a_hi), 0.5 * (s_lo + s_hi))
+
+    def weights_for(self, levels: WeightLevels | None = None) -> ResolvedWeights:
+        """The numbers of the chosen levels (``None``: all "normal", the baseline)."""
+        lv = levels if levels is not None else WeightLevels()
+        pool = self.weight_pool
+        return ResolvedWeights(
+            tracking=pool.tracking.at(lv.tracking),
+            action=pool.action.at(lv.action),
+            smoothness=pool.smoothness.at(lv.smoothness),
+            safety=pool.safety.at(lv.safety),
+        )
+
+
+def _neutral(intervals: tuple[Interval, ...]) -> int:
+    # The interval whose midpoint is closest to 0 among those containing 0.
+    containing = [i for i, (lo, hi) in enumerate(intervals) if lo <= 0.0 <= hi]
+    return min(containing, key=lambda i: abs(sum(intervals[i])))
+
+
+def load_mpc_config(path: str | Path | None = None) -> MpcConfig:
+    """Load and validate the MPC config (``None``: the packaged ``config/mpc.yaml``).
+
+    Raises :class:`MpcConfigError` naming the file, the field and the reason.
+    """
+    file = Path(path) if path is not None and str(path) != "" else DEFAULT_CONFIG_PATH
+    try:
+        text = file.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise MpcConfigError(f"cannot read MPC config {file}: {exc.strerror or exc}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise MpcConfigError(f"MPC config {file} is not valid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise MpcConfigError(f"MPC config {file} must be a mapping of fields, got {type(data)}")
+    try:
+        return MpcConfig.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors(include_url=False)[0]
+        loc = ".".join(str(p) for p in err["loc"]) or "<file>"
+        more = exc.error_count() - 1
+        extra = f" (+{more} more)" if more else ""
+        raise MpcConfigError(
+            f"MPC config {file}: field '{loc}': {err['msg']}{extra}"
+        ) from None

@@ -1,0 +1,84 @@
+"""Predicted agent positions over the horizon (constant speed along a Bezier candidate).
+
+This is a deliberately simple model (the paper's): an agent keeps its current
+speed along the chosen curve; beyond the curve's end it goes on straight. It
+does not model braking, yielding or car following of the agent.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from lmpc_msgs_py.messages import Agent, MapSnapshot
+from lmpc_mpc.reference import Candidate, bezier_points, candidates_for_pose, closest_heading
+
+_SAMPLES = 120
+
+
+@dataclass(frozen=True)
+class AgentForecast:
+    """One agent's predicted box centres over the horizon, with its size."""
+
+    agent_id: str
+    xy_m: np.ndarray
+    """(N+1, 2) positions at t = k dt, k = 0..N (row 0 = now)."""
+    length_m: float
+    width_m: float
+    v_mps: float
+    candidate: tuple[tuple[float, float], ...]
+    """The control points the forecast followed (for display and logs)."""
+
+
+def predict_along(control_points: Sequence[Sequence[float]], *, v_mps: float, horizon: int,
+                  dt_s: float, start_xy_m: tuple[float, float] | None = None) -> np.ndarray:
+    """(horizon+1, 2) positions at constant speed along the Bezier curve of the points.
+
+    ``start_xy_m``: where the agent is now; the forecast starts at the closest
+    point of the curve to it (a decision's curve may be a few steps old)."""
+    pts = bezier_points(control_points, _SAMPLES)
+    seg = np.hypot(*np.diff(pts, axis=0).T)
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    s_start = 0.0
+    if start_xy_m is not None:
+        s_start = float(cum[int(np.argmin(np.hypot(*(pts - np.asarray(start_xy_m)).T)))])
+    s = s_start + np.arange(horizon + 1) * dt_s * max(0.0, float(v_mps))
+    out = np.empty((horizon + 1, 2))
+    out[:, 0] = np.interp(s, cum, pts[:, 0])
+    out[:, 1] = np.interp(s, cum, pts[:, 1])
+    beyond = s > cum[-1]
+    if np.any(beyond):
+        tail = pts[-1] - pts[-2]
+        norm = float(np.hypot(*tail))
+        tail = tail / norm if norm > 1e-9 else np.zeros(2)
+        out[beyond] = pts[-1] + (s[beyond, None] - cum[-1]) * tail
+    return out
+
+
+def baseline_candidate(map_: MapSnapshot, agent: Agent, *, lookahead_m: float) -> Candidate:
+    """The agent's candidate closest to its current heading (the baseline's guess)."""
+    cands = candidates_for_pose(map_, x_m=agent.x_m, y_m=agent.y_m, yaw_rad=agent.yaw_rad,
+                                lane_id=agent.lane_id, lookahead_m=lookahead_m)
+    return closest_heading(cands, agent.yaw_rad)
+
+
+def forecast(agent: Agent, control_points: Sequence[Sequence[float]] | None, *,
+             map_: MapSnapshot, horizon: int, dt_s: float,
+             lookahead_m: float = 60.0) -> AgentForecast:
+    """Forecast ``agent`` along ``control_points`` (a Decision's prediction) or, when
+    None, along its closest-heading candidate. A standing agent stays put."""
+    if control_points is None:
+        if agent.v_mps < 0.05:
+            cps: tuple[tuple[float, float], ...] = (
+                (agent.x_m, agent.y_m),
+                (agent.x_m + math.cos(agent.yaw_rad), agent.y_m + math.sin(agent.yaw_rad)))
+        else:
+            cps = baseline_candidate(map_, agent, lookahead_m=lookahead_m).control_points
+    else:
+        cps = tuple((float(p[0]), float(p[1])) for p in control_points)
+    # the decision's curve starts where the agent was when the planner looked
+    xy = predict_along(cps, v_mps=agent.v_mps, horizon=horizon, dt_s=dt_s,
+                       start_xy_m=(agent.x_m, agent.y_m))
+    return AgentForecast(agent.id, xy, agent.length_m, agent.width_m, agent.v_mps, cps)

@@ -1,0 +1,458 @@
+"""Bezier reference candidates (DESIGN §4, paper "Scenario Encoding"), pure Python + numpy.
+
+The same function builds the candidates of the ego and of every agent: the
+control points are the vehicle's position and a few well-spread points on the
+centerline of one reachable lane path (the current lane ahead, a neighbour lane
+of the same edge, or - near a junction - one outgoing connection through its
+internal lane). Up to three candidates per vehicle.
+
+Approximations (said here so nobody is surprised):
+- a Bezier curve of degree M only approximates its control polygon, so in a
+  sharp turn the curve cuts the corner by a little (we use 5 points along the
+  lookahead to keep that small);
+- where a lane path ends inside the map snapshot (dead end, edge of the map),
+  it is extended straight along its last heading so every candidate has the
+  requested lookahead.
+"""
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+
+from lmpc_msgs_py.messages import EgoState, Lane, LaneLink, MapSnapshot
+
+POINTS_ALONG = 10
+"""Control points placed on the lane path besides the vehicle position."""
+CURVATURE_DENSITY_M = 200.0
+"""Control points are spread by arc length weighted with ``1 + this * |curvature|``
+(curvature averaged over 4 m), so they crowd into turns: a 90 degree left turn of
+radius 9.6 m is then followed within ~0.7 m instead of ~5 m with even spacing."""
+MAX_HEADING_OFF_RAD = math.radians(60.0)
+"""A lane is only a vehicle's lane if its direction is within this of the vehicle's yaw."""
+_DIRECTION_ORDER = {"s": 0, "l": 1, "r": 2, "L": 3, "R": 4, "t": 5, "invalid": 6}
+_TURN_WORDS = {
+    "s": "go straight through the junction",
+    "l": "turn left at the junction",
+    "L": "bear left at the junction",
+    "r": "turn right at the junction",
+    "R": "bear right at the junction",
+    "t": "make a U-turn at the junction",
+    "invalid": "cross the junction",
+}
+
+
+class ReferencePathError(ValueError):
+    """A reference could not be built (bad input geometry)."""
+
+
+# --- Bezier ------------------------------------------------------------------------------
+def bezier_points(control_points: Sequence[Sequence[float]] | np.ndarray, n: int) -> np.ndarray:
+    """``n`` points of the Bezier curve of ``control_points`` at uniform curve parameter.
+
+    Bernstein form (stable enough for the degrees used here, at most 15).
+    Returns an ``(n, 2)`` array whose first / last rows are the first / last control point.
+    """
+    cp = np.asarray(control_points, dtype=float)
+    if cp.ndim != 2 or cp.shape[1] != 2 or cp.shape[0] < 2:
+        raise ReferencePathError(f"control points must be (m>=2, 2), got shape {cp.shape}")
+    if n < 2:
+        raise ReferencePathError(f"need at least 2 samples, got {n}")
+    deg = cp.shape[0] - 1
+    t = np.linspace(0.0, 1.0, n)[:, None]
+    coeff = np.array([math.comb(deg, i) for i in range(deg + 1)], dtype=float)[None, :]
+    i = np.arange(deg + 1)[None, :]
+    basis = coeff * t**i * (1.0 - t) ** (deg - i)
+    return basis @ cp
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One reference candidate of a vehicle: a Bezier curve and what it means."""
+
+    candidate_id: int
+    """0..2 in the order the candidates were built (0 = keep going as now)."""
+    control_points: tuple[tuple[float, float], ...]
+    """First = the vehicle's position, then points on the lane path's centerline."""
+    label: str
+    """Words for the prompt, e.g. "turn left at the junction"."""
+    lane_ids: tuple[str, ...] = ()
+    """Lanes (incl. internal junction lanes) the candidate follows."""
+
+    def sample(self, n: int = 50) -> np.ndarray:
+        """``(n, 2)`` points along the curve."""
+        return bezier_points(self.control_points, n)
+
+    def length_m(self) -> float:
+        """Arc length of the curve (dense polyline approximation)."""
+        pts = self.sample(200)
+        return float(np.sum(np.hypot(*np.diff(pts, axis=0).T)))
+
+
+# --- polylines ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Polyline:
+    pts: np.ndarray
+    cum_m: np.ndarray
+
+    @staticmethod
+    def of(points: Sequence[Sequence[float]] | np.ndarray) -> "_Polyline":
+        pts = _dedupe(np.asarray(points, dtype=float))
+        seg = np.hypot(*np.diff(pts, axis=0).T) if len(pts) > 1 else np.zeros(0)
+        return _Polyline(pts, np.concatenate([[0.0], np.cumsum(seg)]))
+
+    @property
+    def length_m(self) -> float:
+        return float(self.cum_m[-1])
+
+    def project(self, x_m: float, y_m: float) -> tuple[float, float, float]:
+        """(arc length, distance, heading) of the closest point to (x, y)."""
+        if len(self.pts) == 1:
+            return 0.0, float(math.hypot(x_m - self.pts[0, 0], y_m - self.pts[0, 1])), 0.0
+        a = self.pts[:-1]
+        d = np.diff(self.pts, axis=0)
+        seg_len2 = np.maximum(np.sum(d * d, axis=1), 1e-12)
+        p = np.array([x_m, y_m])
+        t = np.clip(np.sum((p - a) * d, axis=1) / seg_len2, 0.0, 1.0)
+        closest = a + t[:, None] * d
+        dist = np.hypot(*(closest - p).T)
+        i = int(np.argmin(dist))
+        s = float(self.cum_m[i] + t[i] * math.sqrt(seg_len2[i]))
+        return s, float(dist[i]), float(math.atan2(d[i, 1], d[i, 0]))
+
+    def at(self, s_m: np.ndarray | float) -> np.ndarray:
+        """Points at arc lengths ``s_m``; beyond the ends the line goes on straight."""
+        s = np.atleast_1d(np.asarray(s_m, dtype=float))
+        if len(self.pts) == 1:
+            return np.repeat(self.pts, len(s), axis=0)
+        out = np.empty((len(s), 2))
+        out[:, 0] = np.interp(s, self.cum_m, self.pts[:, 0])
+        out[:, 1] = np.interp(s, self.cum_m, self.pts[:, 1])
+        head = self.pts[1] - self.pts[0]
+        tail = self.pts[-1] - self.pts[-2]
+        head /= max(np.linalg.norm(head), 1e-9)
+        tail /= max(np.linalg.norm(tail), 1e-9)
+        before = s < 0.0
+        after = s > self.length_m
+        out[before] = self.pts[0] + s[before, None] * head
+        out[after] = self.pts[-1] + (s[after, None] - self.length_m) * tail
+        return out
+
+
+def _dedupe(pts: np.ndarray) -> np.ndarray:
+    if len(pts) < 2:
+        return pts
+    keep = np.concatenate([[True], np.hypot(*np.diff(pts, axis=0).T) > 1e-3])
+    return pts[keep]
+
+
+def _wrap(angle_rad: float) -> float:
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+# --- map index (cached per snapshot) -----------------------------------------------------
+@dataclass
+class _MapIndex:
+    lanes: dict[str, Lane]
+    lines: dict[str, _Polyline]
+    by_edge: dict[str, list[Lane]] = field(default_factory=dict)
+
+
+_CACHE: "OrderedDict[tuple[int, int, float], tuple[MapSnapshot, _MapIndex]]" = OrderedDict()
+
+
+def _index(map_: MapSnapshot) -> _MapIndex:
+    key = (id(map_), map_.version, map_.stamp_s)
+    hit = _CACHE.get(key)
+    if hit is not None and hit[0] is map_:
+        return hit[1]
+    lanes = {ln.id: ln for ln in map_.lanes}
+    lines = {ln.id: _Polyline.of(ln.centerline) for ln in map_.lanes}
+    by_edge: dict[str, list[Lane]] = {}
+    for ln in map_.lanes:
+        by_edge.setdefault(ln.edge_id, []).append(ln)
+    idx = _MapIndex(lanes, lines, by_edge)
+    _CACHE[key] = (map_, idx)  # holding the map keeps id() unique while cached
+    while len(_CACHE) > 4:
+        _CACHE.popitem(last=False)
+    return idx
+
+
+def _locate(idx: _MapIndex, x_m: float, y_m: float, yaw_rad: float,
+            lane_id: Optional[str]) -> Optional[tuple[str, float]]:
+    """The vehicle's lane and its arc length on it, or None when no lane fits."""
+    if lane_id is not None and lane_id in idx.lanes:
+        s, _, _ = idx.lines[lane_id].project(x_m, y_m)
+        return lane_id, s
+    best: Optional[tuple[float, str, float]] = None
+    for lid, line in idx.lines.items():
+        s, dist, heading = line.project(x_m, y_m)
+        off = abs(_wrap(heading - yaw_rad))
+        if off > MAX_HEADING_OFF_RAD or dist > idx.lanes[lid].width_m * 0.5 + 2.0:
+            continue
+        score = dist + 2.0 * off
+        if best is None or score < best[0]:
+            best = (score, lid, s)
+    return None if best is None else (best[1], best[2])
+
+
+def _pick_link(links: Sequence[LaneLink]) -> Optional[LaneLink]:
+    """The straightest successor link (the one "continue" takes)."""
+    if not links:
+        return None
+    return min(links, key=lambda lk: _DIRECTION_ORDER.get(lk.direction, 9))
+
+
+def _chain(idx: _MapIndex, start: Sequence[str], length_m: float,
+           s0_m: float) -> tuple[_Polyline, tuple[str, ...]]:
+    """Concatenate the given lanes (following ``via_lane``), then the straightest
+    successors, until ``length_m`` beyond ``s0_m`` on the first lane is covered."""
+    pts: list[np.ndarray] = []
+    ids: list[str] = []
+    covered = -s0_m
+    queue = list(start)
+    guard = 0
+    while queue and guard < 64:
+        guard += 1
+        lid = queue.pop(0)
+        if lid not in idx.lanes or (ids and ids[-1] == lid):
+            continue
+        # insert the internal lane of the connection when the list skips it
+        if ids and ids[-1] in idx.lanes:
+            for lk in idx.lanes[ids[-1]].successors:
+                if lk.to_lane == lid and lk.via_lane and lk.via_lane in idx.lanes \
+                        and lk.via_lane != ids[-1]:
+                    pts.append(idx.lines[lk.via_lane].pts)
+                    ids.append(lk.via_lane)
+                    covered += idx.lines[lk.via_lane].length_m
+        pts.append(idx.lines[lid].pts)
+        ids.append(lid)
+        covered += idx.lines[lid].length_m
+        if not queue and covered < length_m:
+            link = _pick_link(idx.lanes[lid].successors)
+            if link is not None and link.to_lane in idx.lanes and link.to_lane not in ids:
+                queue.append(link.to_lane)
+    return _Polyline.of(np.concatenate(pts, axis=0)), tuple(ids)
+
+
+def _control_points(line: _Polyline, s0_m: float, x_m: float, y_m: float,
+                    lookahead_m: float) -> tuple[tuple[float, float], ...]:
+    ds = 0.1
+    ss = np.arange(s0_m, s0_m + lookahead_m + 0.5 * ds, ds)
+    p = line.at(ss)
+    d = np.gradient(p, ds, axis=0)
+    dd = np.gradient(d, ds, axis=0)
+    kappa = np.abs(d[:, 0] * dd[:, 1] - d[:, 1] * dd[:, 0])
+    win = min(41, len(kappa))
+    kappa = np.convolve(kappa, np.ones(win) / win, mode="same")
+    w = 1.0 + CURVATURE_DENSITY_M * kappa
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * ds)])
+    s = np.interp(np.arange(1, POINTS_ALONG + 1) / POINTS_ALONG, cum / cum[-1], ss)
+    pts = line.at(s)
+    return ((float(x_m), float(y_m)),) + tuple((float(px), float(py)) for px, py in pts)
+
+
+def _side(line_from: _Polyline, s_m: float, other: _Polyline) -> float:
+    """Signed lateral offset of ``other`` from ``line_from`` at ``s_m`` (+ = left)."""
+    p = line_from.at([s_m, s_m + 1.0])
+    t = p[1] - p[0]
+    s_o, _, _ = other.project(float(p[0, 0]), float(p[0, 1]))
+    q = other.at(s_o)[0] - p[0]
+    return float(t[0] * q[1] - t[1] * q[0])
+
+
+# --- candidates --------------------------------------------------------------------------
+def candidates_for_pose(map: MapSnapshot, *, x_m: float, y_m: float, yaw_rad: float,
+                        lane_id: str | None, lookahead_m: float = 60.0) -> list[Candidate]:
+    """Up to three reference candidates of a vehicle at this pose.
+
+    Near a junction (the lane ends within ``lookahead_m`` and has connections in
+    two or more directions) the candidates are the outgoing connections
+    (straight first, then left, right). Otherwise: keep the lane, and change to
+    the left / right neighbour lane of the same edge where one exists. A vehicle
+    on no known lane gets one straight candidate along its heading.
+    """
+    idx = _index(map)
+    where = _locate(idx, x_m, y_m, yaw_rad, lane_id)
+    if where is None:
+        ahead = np.array([x_m, y_m]) + np.outer(
+            lookahead_m * np.arange(1, POINTS_ALONG + 1) / POINTS_ALONG,
+            [math.cos(yaw_rad), math.sin(yaw_rad)],
+        )
+        cps = ((float(x_m), float(y_m)),) + tuple((float(a), float(b)) for a, b in ahead)
+        return [Candidate(0, cps, "continue straight ahead", ())]
+    lid, s0 = where
+    lane = idx.lanes[lid]
+    remaining = idx.lines[lid].length_m - s0
+    by_dir: dict[str, LaneLink] = {}
+    for lk in sorted(lane.successors, key=lambda k: _DIRECTION_ORDER.get(k.direction, 9)):
+        if lk.to_lane in idx.lanes:
+            by_dir.setdefault(lk.direction, lk)
+    out: list[Candidate] = []
+    if remaining < lookahead_m and len(by_dir) >= 2 and not lane.internal:
+        for lk in list(by_dir.values())[:3]:
+            chain = [lid] + ([lk.via_lane] if lk.via_lane else []) + [lk.to_lane]
+            line, ids = _chain(idx, chain, lookahead_m, s0)
+            cps = _control_points(line, s0, x_m, y_m, lookahead_m)
+            out.append(Candidate(len(out), cps, _TURN_WORDS.get(lk.direction, "cross"), ids))
+        return out
+    line, ids = _chain(idx, [lid], lookahead_m, s0)
+    keep_label = "continue through the junction" if lane.internal else "continue in lane"
+    link = _pick_link(lane.successors)
+    if not lane.internal and link is not None and remaining < lookahead_m \
+            and link.direction in ("l", "r", "L", "R", "t"):
+        keep_label = f"continue in lane and {_TURN_WORDS[link.direction].split(' at ')[0]}" \
+            " at the junction"
+    out.append(Candidate(0, _control_points(line, s0, x_m, y_m, lookahead_m), keep_label, ids))
+    if lane.internal:
+        return out
+    here = idx.lines[lid]
+    neighbours = [ln for ln in idx.by_edge.get(lane.edge_id, ())
+                  if abs(ln.index - lane.index) == 1 and not ln.internal]
+    for nb in sorted(neighbours, key=lambda ln: -_side(here, s0, idx.lines[ln.id])):
+        nline = idx.lines[nb.id]
+        ns0, _, _ = nline.project(x_m, y_m)
+        side = "left" if _side(here, s0, nline) > 0 else "right"
+        line_nb, ids_nb = _chain(idx, [nb.id], lookahead_m, ns0)
+        cps = _control_points(line_nb, ns0, x_m, y_m, lookahead_m)
+        out.append(Candidate(len(out), cps, f"change to the {side} lane", ids_nb))
+    return out[:3]
+
+
+def route_candidate(map: MapSnapshot, ego: EgoState, *, lookahead_m: float = 60.0) -> Candidate:
+    """The baseline reference: the ego's route (``map.ego_route``) from its position."""
+    idx = _index(map)
+    route = [lid for lid in map.ego_route if lid in idx.lanes]
+    if not route:
+        cands = candidates_for_pose(map, x_m=ego.x_m, y_m=ego.y_m, yaw_rad=ego.yaw_rad,
+                                    lane_id=ego.lane_id, lookahead_m=lookahead_m)
+        c = cands[0]
+        return Candidate(0, c.control_points, "follow the route", c.lane_ids)
+    start: Optional[int] = None
+    if ego.lane_id in route:
+        # a route rarely visits a lane twice; prefer the visit at / after the bridge's hint
+        visits = [i for i, lid in enumerate(route) if lid == ego.lane_id]
+        later = [i for i in visits if i >= min(ego.route_index, len(route) - 1)]
+        start = later[0] if later else visits[0]
+    if start is None:
+        # off the route's lanes (e.g. mid lane change): the nearest route lane that fits
+        best: Optional[tuple[float, int]] = None
+        for i, lid in enumerate(route):
+            s, dist, heading = idx.lines[lid].project(ego.x_m, ego.y_m)
+            score = dist + 2.0 * abs(_wrap(heading - ego.yaw_rad))
+            if best is None or score < best[0]:
+                best = (score, i)
+        start = best[1] if best is not None else 0
+    s0, _, _ = idx.lines[route[start]].project(ego.x_m, ego.y_m)
+    line, ids = _chain(idx, route[start:], lookahead_m, s0)
+    cps = _control_points(line, s0, ego.x_m, ego.y_m, lookahead_m)
+    return Candidate(0, cps, "follow the route", ids)
+
+
+def closest_heading(cands: Sequence[Candidate], yaw_rad: float) -> Candidate:
+    """The candidate whose direction over its first stretch is closest to ``yaw_rad``.
+
+    Ties go to the lower id (keep the lane / go straight)."""
+    if not cands:
+        raise ReferencePathError("closest_heading needs at least one candidate")
+
+    def off(c: Candidate) -> float:
+        pts = c.sample(40)
+        # heading of the chord to the point a quarter along the curve
+        d = pts[10] - pts[0]
+        if float(np.hypot(*d)) < 1e-6:
+            return 0.0
+        return abs(_wrap(math.atan2(d[1], d[0]) - yaw_rad))
+
+    return min(cands, key=lambda c: (round(off(c), 6), c.candidate_id))
+
+
+# --- time parameterisation ---------------------------------------------------------------
+@dataclass(frozen=True)
+class TimedReference:
+    """A reference in time: ``states`` rows (x, y, yaw, v) at t = k dt, k = 0..N,
+    and the path curvature at each row (for the steer reference)."""
+
+    states: np.ndarray
+    curvature_1pm: np.ndarray
+    path: np.ndarray
+    """The dense (M, 2) geometric path the states lie on."""
+
+
+def _path_geometry(points: np.ndarray, ds_m: float) -> tuple[_Polyline, np.ndarray,
+                                                               np.ndarray, np.ndarray]:
+    line = _Polyline.of(points)
+    length = max(line.length_m, ds_m)
+    s = np.arange(0.0, length + ds_m, ds_m)
+    xy = line.at(s)
+    d = np.gradient(xy, ds_m, axis=0)
+    dd = np.gradient(d, ds_m, axis=0)
+    yaw = np.arctan2(d[:, 1], d[:, 0])
+    speed2 = np.maximum(np.sum(d * d, axis=1), 1e-9)
+    kappa = (d[:, 0] * dd[:, 1] - d[:, 1] * dd[:, 0]) / speed2**1.5
+    # smooth the numerical curvature a little (3-tap average) so the cap is not noisy
+    if len(kappa) >= 3:
+        kappa = np.convolve(np.pad(kappa, 1, mode="edge"), np.ones(3) / 3.0, mode="valid")
+    return line, s, yaw, kappa
+
+
+def timed_reference(points: np.ndarray, *, v0_mps: float, v_max_mps: float, a_max_mps2: float,
+                    a_lat_max_mps2: float, horizon: int, dt_s: float,
+                    a_dec_mps2: float | None = None, stop_at_m: float | None = None,
+                    ds_m: float = 0.5) -> TimedReference:
+    """Time-parameterise a path; see :func:`time_parameterize`. Also returns curvature.
+
+    ``stop_at_m``: arc length where the reference must come to rest (red light).
+    ``a_dec_mps2``: deceleration the profile plans with (default ``2 * a_max``).
+    """
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
+        raise ReferencePathError(f"path must be (m>=2, 2), got shape {pts.shape}")
+    if not np.all(np.isfinite(pts)):
+        raise ReferencePathError("path contains NaN or infinite coordinates")
+    dec = a_dec_mps2 if a_dec_mps2 is not None else 2.0 * a_max_mps2
+    line, s, yaw, kappa = _path_geometry(pts, ds_m)
+    v_cap = np.minimum(v_max_mps, np.sqrt(a_lat_max_mps2 / np.maximum(np.abs(kappa), 1e-6)))
+    if stop_at_m is not None:
+        v_cap = np.where(s >= stop_at_m, 0.0, v_cap)
+    # backward pass: be able to slow down for curves / the stop point with `dec`
+    v_b = v_cap.copy()
+    for i in range(len(v_b) - 2, -1, -1):
+        v_b[i] = min(v_b[i], math.sqrt(v_b[i + 1] ** 2 + 2.0 * dec * ds_m))
+    end_v = float(v_b[-1])
+    s_end = float(s[-1])
+    states = np.empty((horizon + 1, 4))
+    curv = np.empty(horizon + 1)
+    pos, v = 0.0, max(0.0, float(v0_mps))
+    for k in range(horizon + 1):
+        if stop_at_m is not None:
+            pos = min(pos, max(stop_at_m, 0.0))
+        xy = line.at(pos)[0]
+        if pos <= s_end:
+            yk = float(np.interp(pos, s, np.unwrap(yaw)))
+            ck = float(np.interp(pos, s, kappa))
+        else:
+            yk, ck = float(yaw[-1]), 0.0
+        states[k] = (xy[0], xy[1], _wrap(yk), v)
+        curv[k] = ck
+        target = float(np.interp(pos, s, v_b)) if pos <= s_end else end_v
+        v_next = min(target, v + a_max_mps2 * dt_s) if v < target else max(target, v - dec * dt_s)
+        pos += 0.5 * (v + v_next) * dt_s
+        v = max(0.0, v_next)
+    return TimedReference(states=states, curvature_1pm=curv, path=line.at(s))
+
+
+def time_parameterize(points: np.ndarray, *, v0_mps: float, v_max_mps: float, a_max_mps2: float,
+                      a_lat_max_mps2: float, horizon: int, dt_s: float) -> np.ndarray:
+    """Rows (x, y, yaw, v) at t = k dt, k = 0..horizon, along the path ``points``.
+
+    Speed starts at ``v0_mps``, rises at ``a_max_mps2`` towards ``v_max_mps``,
+    capped in curves so the lateral acceleration stays below ``a_lat_max_mps2``
+    (planned with a deceleration of ``2 * a_max``). Beyond the path's end the
+    reference goes on straight.
+    """
+    return timed_reference(points, v0_mps=v0_mps, v_max_mps=v_max_mps, a_max_mps2=a_max_mps2,
+                           a_lat_max_mps2=a_lat_max_mps2, horizon=horizon, dt_s=dt_s).states

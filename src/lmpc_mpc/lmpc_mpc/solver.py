@@ -1,0 +1,452 @@
+"""The CasADi MPC of DESIGN §4 (kinematic bicycle, LanguageMPC cost), FATROP or IPOPT.
+
+Problem (stage-wise, so FATROP's structure detection finds the OCP):
+
+- state ``s_k = (x, y, yaw, v, a_{k-1}, delta_{k-1}, a_{k-2}, delta_{k-2})``: the box centre
+  pose and speed of the kinematic bicycle plus the two previous controls, carried so
+  the first and second differences of ``A`` stay stage-local;
+- control ``A_k = (a_k, delta_k)``, dynamics one RK4 step of length ``dt``;
+- cost ``sum_k C_trk + C_act + C_saf``:
+  ``C_trk = W_x |p - p_ref|^2 + W_v (v - v_ref)^2 + W_yaw 2(1 - cos(yaw - yaw_ref))
+  + W_steer (delta - delta_ref)^2`` (``delta_ref`` from the reference curvature);
+  ``C_act = (A - A_hat)^T W_s (A - A_hat) + dA^T W_g dA + d2A^T W_l d2A``;
+  ``C_saf = w_saf sum_i on_i max(0, d_hat_ik - d_ik)^2`` with
+  ``d_hat_ik = g_i + h_ik v_k`` (gap + half-lengths, time headway only for agents ahead)
+  and ``d_ik`` the distance to the agent's predicted centre measured in the reference
+  frame with the lateral axis stretched by ``rho_ik`` (so the safe zone is an ellipse
+  whose side clearance is the half-widths plus a side gap: a car passing in the next
+  lane is not penalised, a car ahead is kept a headway away);
+- hard bounds: ``a``, ``delta``, ``v`` (``VehicleParams``) and the steer rate.
+
+Every weight, the bias, the reference, the obstacle predictions and their slots are
+parameters of one compiled problem per number of obstacle slots. Unused slots have
+``on = 0`` and add no cost.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import casadi as ca
+import numpy as np
+
+from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
+from lmpc_mpc.config import MpcConfig, ResolvedWeights
+
+NX = 8
+NU = 2
+NREF = 5
+NOBS = 6
+N_W = 13  # weights: pos, v, yaw, steer_trk, s_a, s_d, g_a, g_d, l_a, l_d, saf, bias_a, bias_d
+_EPS_D2 = 1e-2
+import os
+JIT = os.environ.get("LMPC_MPC_JIT", "0") == "1"
+
+
+class MpcInputError(ValueError):
+    """An MPC problem with inconsistent shapes or non-finite numbers."""
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """One attended participant (or a virtual stop-line obstacle) over the horizon."""
+
+    obstacle_id: str
+    xy_m: np.ndarray
+    """(N+1, 2) predicted box centres, row k at t = k dt."""
+    length_m: float
+    width_m: float
+    virtual: bool = False
+    """A red-light stop line: no headway, a small gap."""
+
+
+@dataclass(frozen=True)
+class MpcProblem:
+    """Everything one solve needs, in numbers (built by the controller)."""
+
+    x0: tuple[float, float, float, float]
+    """Current (x_m, y_m, yaw_rad, v_mps) of the box centre."""
+    u_prev: tuple[float, float]
+    """The control applied in the previous step (accel_mps2, steer_rad)."""
+    u_prev2: tuple[float, float]
+    """The control applied two steps ago."""
+    reference: np.ndarray
+    """(N+1, 4) rows (x, y, yaw, v) of the time-parameterised reference."""
+    reference_curvature_1pm: np.ndarray
+    """(N+1,) curvature of the reference path (gives the steer reference)."""
+    weights: ResolvedWeights
+    bias: tuple[float, float] = (0.0, 0.0)
+    """A_hat = (accel_mps2, steer_rad)."""
+    obstacles: tuple[Obstacle, ...] = ()
+
+
+@dataclass(frozen=True)
+class MpcResult:
+    """Outcome of one solve. ``u0`` and ``predicted`` are only meaningful on success."""
+
+    success: bool
+    status: str
+    u0: tuple[float, float]
+    predicted: np.ndarray
+    """(N+1, 4) rows (x, y, yaw, v) of the predicted ego states."""
+    solve_time_s: float
+    iterations: int
+    controls: np.ndarray = field(default_factory=lambda: np.zeros((0, NU)))
+    """(N, 2) planned controls (the shifted-plan fallback uses them)."""
+
+
+def _bicycle(vehicle: VehicleParams) -> ca.Function:
+    s = ca.SX.sym("s", 4)
+    u = ca.SX.sym("u", 2)
+    ratio = vehicle.lr_m / vehicle.wheelbase_m
+    beta = ca.atan(ratio * ca.tan(u[1]))
+    rhs = ca.vertcat(s[3] * ca.cos(s[2] + beta), s[3] * ca.sin(s[2] + beta),
+                     s[3] / vehicle.lr_m * ca.sin(beta), u[0])
+    return ca.Function("f", [s, u], [rhs])
+
+
+def rk4_step(f: ca.Function, s: ca.SX, u: ca.SX, dt_s: float) -> ca.SX:
+    """One RK4 step of ``s' = f(s, u)``."""
+    k1 = f(s, u)
+    k2 = f(s + 0.5 * dt_s * k1, u)
+    k3 = f(s + 0.5 * dt_s * k2, u)
+    k4 = f(s + dt_s * k3, u)
+    return s + dt_s / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def simulate_bicycle(x0: Sequence[float], controls: np.ndarray, *, dt_s: float,
+                     vehicle: VehicleParams = DEFAULT_VEHICLE) -> np.ndarray:
+    """Roll the same model out in numpy (RK4): (len(controls)+1, 4) states."""
+    ratio = vehicle.lr_m / vehicle.wheelbase_m
+
+    def f(s: np.ndarray, u: np.ndarray) -> np.ndarray:
+        beta = math.atan(ratio * math.tan(u[1]))
+        return np.array([s[3] * math.cos(s[2] + beta), s[3] * math.sin(s[2] + beta),
+                         s[3] / vehicle.lr_m * math.sin(beta), u[0]])
+
+    out = np.empty((len(controls) + 1, 4))
+    out[0] = x0
+    for k, u in enumerate(np.asarray(controls, dtype=float)):
+        s = out[k]
+        k1 = f(s, u)
+        k2 = f(s + 0.5 * dt_s * k1, u)
+        k3 = f(s + 0.5 * dt_s * k2, u)
+        k4 = f(s + dt_s * k3, u)
+        out[k + 1] = s + dt_s / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        out[k + 1, 3] = max(out[k + 1, 3], 0.0)
+    return out
+
+
+@dataclass
+class _Compiled:
+    solver: ca.Function
+    n_slots: int
+    lbx: np.ndarray
+    ubx: np.ndarray
+    lbg: np.ndarray
+    ubg: np.ndarray
+    n_p: int
+
+
+class MpcSolver:
+    """Builds (lazily, one per obstacle-slot count) and runs the MPC NLP."""
+
+    def __init__(self, config: MpcConfig, vehicle: VehicleParams = DEFAULT_VEHICLE, *,
+                 solver: Optional[str] = None) -> None:
+        self.config = config
+        self.vehicle = vehicle
+        self.solver_name = solver or config.solver
+        if self.solver_name not in ("fatrop", "ipopt"):
+            raise ValueError(f"solver must be 'fatrop' or 'ipopt', got {self.solver_name!r}")
+        self.n = config.horizon
+        self.dt_s = config.dt_s
+        self._compiled: dict[int, _Compiled] = {}
+        self._warm: Optional[np.ndarray] = None
+        self._warm_slots: Optional[int] = None
+
+    # -- building ------------------------------------------------------------------------
+    def slots_for(self, n_obstacles: int) -> int:
+        """The smallest compiled size that holds ``n_obstacles``."""
+        for size in self.config.agent_slot_sizes:
+            if size >= n_obstacles:
+                return size
+        return self.config.agent_slot_sizes[-1]
+
+    def _build(self, n_slots: int) -> _Compiled:
+        n, dt, veh = self.n, self.dt_s, self.vehicle
+        f = _bicycle(veh)
+        n_stage_p = NREF + NOBS * n_slots
+        p_x0 = ca.SX.sym("x0", NX)
+        p_w = ca.SX.sym("w", N_W)
+        p_st = [ca.SX.sym(f"p{k}", n_stage_p) for k in range(n + 1)]
+        xs = [ca.SX.sym(f"x{k}", NX) for k in range(n + 1)]
+        us = [ca.SX.sym(f"u{k}", NU) for k in range(n)]
+        (w_pos, w_v, w_yaw, w_str, s_a, s_d, g_a, g_d, l_a, l_d, w_saf, b_a, b_d) = \
+            [p_w[i] for i in range(N_W)]
+        rate = veh.max_steer_rate_radps * dt
+        w_vars: list[ca.SX] = []
+        g: list[ca.SX] = []
+        lbg: list[float] = []
+        ubg: list[float] = []
+        lbx: list[float] = []
+        ubx: list[float] = []
+        big = 1e6
+        x_lb = [-big, -big, -big, 0.0, -veh.max_decel_mps2, -veh.max_steer_rad,
+                -veh.max_decel_mps2, -veh.max_steer_rad]
+        x_ub = [big, big, big, veh.max_speed_mps, veh.max_accel_mps2, veh.max_steer_rad,
+                veh.max_accel_mps2, veh.max_steer_rad]
+        u_lb = [-veh.max_decel_mps2, -veh.max_steer_rad]
+        u_ub = [veh.max_accel_mps2, veh.max_steer_rad]
+        cost = 0
+        # FATROP's stage layout: per stage k the gap-closing rows (x_{k+1} = F(x_k, u_k))
+        # first, then the stage's path constraints.
+        for k in range(n + 1):
+            x = xs[k]
+            w_vars.append(x)
+            path_g: list[ca.SX] = []
+            path_lb: list[float] = []
+            path_ub: list[float] = []
+            if k == 0:
+                # the initial state is a parameter; speed may exceed the bound (e.g. a
+                # downhill push) so stage 0 carries no state bounds, only this equality
+                lbx += [-big] * NX
+                ubx += [big] * NX
+                path_g.append(x - p_x0)
+                path_lb += [0.0] * NX
+                path_ub += [0.0] * NX
+            else:
+                lbx += x_lb
+                ubx += x_ub
+                cost += self._stage_cost(x, p_st[k], n_slots, w_pos, w_v, w_yaw, w_saf)
+            if k < n:
+                u = us[k]
+                w_vars.append(u)
+                lbx += u_lb
+                ubx += u_ub
+                nxt = rk4_step(f, x[:4], u, dt)
+                g.append(xs[k + 1] - ca.vertcat(nxt, u, x[4], x[5]))
+                lbg += [0.0] * NX
+                ubg += [0.0] * NX
+                # steering rate bound: |delta_k - delta_{k-1}| <= rate * dt
+                path_g.append(u[1] - x[5])
+                path_lb.append(-rate)
+                path_ub.append(rate)
+                kap = p_st[k + 1][4]
+                d_ref = ca.atan(veh.wheelbase_m * kap)
+                cost += w_str * (u[1] - d_ref) ** 2
+                cost += s_a * (u[0] - b_a) ** 2 + s_d * (u[1] - b_d) ** 2
+                cost += g_a * (u[0] - x[4]) ** 2 + g_d * (u[1] - x[5]) ** 2
+                cost += l_a * (u[0] - 2 * x[4] + x[6]) ** 2 + l_d * (u[1] - 2 * x[5] + x[7]) ** 2
+            g += path_g
+            lbg += path_lb
+            ubg += path_ub
+        p_all = ca.vertcat(p_x0, p_w, *p_st)
+        nlp = {"x": ca.vertcat(*w_vars), "p": p_all, "f": cost, "g": ca.vertcat(*g)}
+        lbg_a = np.array(lbg)
+        ubg_a = np.array(ubg)
+        equality = [bool(lo == hi) for lo, hi in zip(lbg, ubg)]
+        budget = self.config.time_budget_s
+        if self.solver_name == "fatrop":
+            opts = {
+                "structure_detection": "manual",
+                "N": n,
+                "nx": [NX] * (n + 1),
+                "nu": [NU] * n + [0],
+                "ng": [NX + 1] + [1] * (n - 1) + [0],
+                "equality": equality,
+                "expand": True,
+                "fatrop": {"print_level": 0, "max_iter": self.config.max_iterations,
+                           "tol": 1e-5, "mu_init": 1e-1},
+                "print_time": False,
+                "error_on_fail": False,
+                "debug": False,
+            }
+            if JIT:
+                opts.update({"jit": True, "compiler": "shell",
+                             "jit_options": {"flags": ["-O1"], "verbose": False}})
+        else:
+            opts = {
+                "expand": True,
+                "ipopt": {"print_level": 0, "max_iter": self.config.max_iterations,
+                          "tol": 1e-5, "max_wall_time": budget, "sb": "yes",
+                          "warm_start_init_point": "no"},
+                "print_time": False,
+                "error_on_fail": False,
+            }
+        solver = ca.nlpsol("mpc", self.solver_name, nlp, opts)
+        return _Compiled(solver, n_slots, np.array(lbx), np.array(ubx), lbg_a, ubg_a,
+                         int(p_all.numel()))
+
+    @staticmethod
+    def _stage_cost(x: ca.SX, p: ca.SX, n_slots: int, w_pos: ca.SX, w_v: ca.SX,
+                    w_yaw: ca.SX, w_saf: ca.SX) -> ca.SX:
+        xr, yr, yawr, vr = p[0], p[1], p[2], p[3]
+        c = w_pos * ((x[0] - xr) ** 2 + (x[1] - yr) ** 2) + w_v * (x[3] - vr) ** 2
+        c += w_yaw * 2.0 * (1.0 - ca.cos(x[2] - yawr))
+        cy, sy = ca.cos(yawr), ca.sin(yawr)
+        for i in range(n_slots):
+            o = p[NREF + NOBS * i: NREF + NOBS * (i + 1)]
+            ox, oy, gap, headway, rho, on = o[0], o[1], o[2], o[3], o[4], o[5]
+            dx, dy = x[0] - ox, x[1] - oy
+            lon = cy * dx + sy * dy
+            lat = -sy * dx + cy * dy
+            d = ca.sqrt(lon ** 2 + (rho * lat) ** 2 + _EPS_D2)
+            short = ca.fmax(0.0, gap + headway * x[3] - d)
+            c += w_saf * on * short ** 2
+        return c
+
+    def compiled(self, n_slots: int) -> _Compiled:
+        """The problem of ``n_slots`` obstacle slots (built on first use, ~0.1-1 s)."""
+        if n_slots not in self._compiled:
+            self._compiled[n_slots] = self._build(n_slots)
+        return self._compiled[n_slots]
+
+    def reset(self) -> None:
+        """Forget the warm start (e.g. after a teleport or a new episode)."""
+        self._warm = None
+        self._warm_slots = None
+
+    # -- parameters ----------------------------------------------------------------------
+    def _params(self, prob: MpcProblem, n_slots: int) -> tuple[np.ndarray, np.ndarray]:
+        n, cfg, veh = self.n, self.config, self.vehicle
+        ref = np.asarray(prob.reference, dtype=float)
+        kap = np.asarray(prob.reference_curvature_1pm, dtype=float)
+        if ref.shape != (n + 1, 4) or kap.shape != (n + 1,):
+            raise MpcInputError(
+                f"reference must be ({n + 1}, 4) and curvature ({n + 1},), got "
+                f"{ref.shape} and {kap.shape}")
+        a_prev = float(np.clip(prob.u_prev[0], -veh.max_decel_mps2, veh.max_accel_mps2))
+        d_prev = float(np.clip(prob.u_prev[1], -veh.max_steer_rad, veh.max_steer_rad))
+        a_prev2 = float(np.clip(prob.u_prev2[0], -veh.max_decel_mps2, veh.max_accel_mps2))
+        d_prev2 = float(np.clip(prob.u_prev2[1], -veh.max_steer_rad, veh.max_steer_rad))
+        x0 = np.array([*prob.x0, a_prev, d_prev, a_prev2, d_prev2], dtype=float)
+        w = prob.weights
+        wv = np.array([
+            w.tracking.w_pos, w.tracking.w_v, w.tracking.w_yaw, w.tracking.w_steer,
+            w.action.w_accel, w.action.w_steer,
+            w.smoothness.w_g_accel, w.smoothness.w_g_steer,
+            w.smoothness.w_l_accel, w.smoothness.w_l_steer,
+            w.safety.w_saf, prob.bias[0], prob.bias[1]], dtype=float)
+        stage = np.zeros((n + 1, NREF + NOBS * n_slots))
+        # unwrap the reference yaw next to the current yaw so 1 - cos never sees a jump
+        yaw_ref = np.unwrap(np.concatenate([[prob.x0[2]], ref[:, 2]]))[1:]
+        stage[:, 0:2] = ref[:, 0:2]
+        stage[:, 2] = yaw_ref
+        stage[:, 3] = ref[:, 3]
+        stage[:, 4] = kap
+        half_l = 0.5 * veh.length_m
+        half_w = 0.5 * veh.width_m
+        cos_r, sin_r = np.cos(yaw_ref), np.sin(yaw_ref)
+        for i, ob in enumerate(prob.obstacles[:n_slots]):
+            xy = np.asarray(ob.xy_m, dtype=float)
+            if xy.shape != (n + 1, 2):
+                raise MpcInputError(f"obstacle {ob.obstacle_id!r}: xy_m must be ({n + 1}, 2), "
+                                    f"got {xy.shape}")
+            base = NREF + NOBS * i
+            lon_ahead = (xy[:, 0] - ref[:, 0]) * cos_r + (xy[:, 1] - ref[:, 1]) * sin_r
+            lat_clear = half_w + 0.5 * ob.width_m + cfg.safety_lateral_gap_m
+            if ob.virtual:
+                gap = half_l + 1.0
+                head = np.zeros(n + 1)
+            else:
+                gap = cfg.safety_gap_m + half_l + 0.5 * ob.length_m
+                ahead = lon_ahead > -half_l
+                head = np.where(ahead, cfg.safety_headway_s, 0.0)
+                # behind the ego only near-overlap counts (a follower must not push us on)
+                gap_k = np.where(ahead, gap, half_l + 0.5 * ob.length_m + 0.5)
+            if ob.virtual:
+                gap_k = np.full(n + 1, gap)
+            d_hat_ref = gap_k + head * ref[:, 3]
+            stage[:, base + 0] = xy[:, 0]
+            stage[:, base + 1] = xy[:, 1]
+            stage[:, base + 2] = gap_k
+            stage[:, base + 3] = head
+            stage[:, base + 4] = np.maximum(d_hat_ref / lat_clear, 1.0)
+            stage[:, base + 5] = 1.0
+        p = np.concatenate([x0, wv, stage.ravel()])
+        if not np.all(np.isfinite(p)):
+            raise MpcInputError("MPC problem contains NaN or infinite numbers")
+        return p, x0
+
+    def _initial_guess(self, x0: np.ndarray, n_slots: int) -> np.ndarray:
+        n = self.n
+        if self._warm is not None and self._warm_slots is not None:
+            prev = self._warm
+            xs = prev[:, :NX]
+            us = prev[:, NX:]
+            # shift by one stage, keep the last control, then re-anchor on x0
+            us_s = np.vstack([us[1:n], us[n - 1:n]])
+            xs_s = np.vstack([xs[1:], xs[-1:]])
+            xs_s[0] = x0
+        else:
+            us_s = np.zeros((n, NU))
+            us_s[:, 1] = x0[5]
+            traj = simulate_bicycle(x0[:4], us_s, dt_s=self.dt_s, vehicle=self.vehicle)
+            xs_s = np.zeros((n + 1, NX))
+            xs_s[:, :4] = traj
+            xs_s[:, 4:6] = np.vstack([x0[4:6], us_s])
+            xs_s[:, 6:8] = np.vstack([x0[6:8], x0[4:6], us_s[:-1]])
+        guess = []
+        for k in range(n + 1):
+            guess.append(xs_s[k])
+            if k < n:
+                guess.append(us_s[k])
+        return np.concatenate(guess)
+
+    # -- solving -------------------------------------------------------------------------
+    def solve(self, problem: MpcProblem) -> MpcResult:
+        """Solve one step. Never returns an unconverged or non-finite solution as success."""
+        n = self.n
+        t0 = time.perf_counter()
+        n_slots = self.slots_for(len(problem.obstacles))
+        comp = self.compiled(n_slots)
+        t0 = time.perf_counter()  # compiling is not part of the solve time
+        try:
+            p, x0 = self._params(problem, n_slots)
+        except MpcInputError as exc:
+            return self._fail(f"bad input: {exc}", t0, 0)
+        w0 = self._initial_guess(x0, n_slots)
+        try:
+            sol = comp.solver(x0=w0, p=p, lbx=comp.lbx, ubx=comp.ubx, lbg=comp.lbg,
+                              ubg=comp.ubg)
+        except RuntimeError as exc:  # CasADi raises on evaluation errors (NaN in a function)
+            return self._fail(f"solver error: {str(exc).splitlines()[0][:120]}", t0, 0)
+        elapsed = time.perf_counter() - t0
+        stats = comp.solver.stats()
+        status = str(stats.get("return_status", "unknown"))
+        iters = int(stats.get("iter_count", 0) or 0)
+        wsol = np.asarray(sol["x"]).ravel()
+        stage = np.empty((n + 1, NX + NU))
+        xs = np.empty((n + 1, NX))
+        us = np.empty((n, NU))
+        step = NX + NU
+        for k in range(n + 1):
+            xs[k] = wsol[k * step: k * step + NX]
+            if k < n:
+                us[k] = wsol[k * step + NX: (k + 1) * step]
+        stage[:, :NX] = xs
+        stage[:n, NX:] = us
+        stage[n, NX:] = us[-1]
+        if not bool(stats.get("success", False)):
+            return self._fail(f"not converged: {status}", t0, iters, elapsed)
+        if not (np.all(np.isfinite(xs)) and np.all(np.isfinite(us))):
+            return self._fail("non-finite solution", t0, iters, elapsed)
+        if elapsed > self.config.time_budget_s:
+            return self._fail(
+                f"over time budget ({elapsed * 1e3:.1f} ms > "
+                f"{self.config.time_budget_s * 1e3:.1f} ms)", t0, iters, elapsed)
+        self._warm = stage
+        self._warm_slots = n_slots
+        veh = self.vehicle
+        u0 = (float(np.clip(us[0, 0], -veh.max_decel_mps2, veh.max_accel_mps2)),
+              float(np.clip(us[0, 1], -veh.max_steer_rad, veh.max_steer_rad)))
+        return MpcResult(True, status, u0, xs[:, :4].copy(), elapsed, iters, us.copy())
+
+    def _fail(self, status: str, t0: float, iters: int,
+              elapsed: Optional[float] = None) -> MpcResult:
+        # a failed solve must not seed the next one
+        self._warm = None
+        dt = elapsed if elapsed is not None else time.perf_counter() - t0
+        return MpcResult(False, status, (0.0, 0.0), np.zeros((self.n + 1, 4)), dt, iters)

@@ -1,0 +1,158 @@
+"""Hand-made maps and observations for unit tests and the solver benchmark.
+
+These are *synthetic*: simple geometry written by hand (no SUMO), in the same
+schemas the bridge publishes, so tests of the reference, the solver and the
+controller need no simulator.
+"""
+from __future__ import annotations
+
+import math
+from typing import Optional, Sequence
+
+import numpy as np
+
+from lmpc_msgs_py.messages import (
+    Agent,
+    AgentArray,
+    EgoState,
+    Lane,
+    LaneLink,
+    MapSnapshot,
+    SignalStates,
+    StopLine,
+    TargetArea,
+)
+from lmpc_msgs_py.observation import Observation
+
+LANE_W_M = 3.2
+
+
+def _line(x0: float, y0: float, x1: float, y1: float, n: int = 2) -> tuple[tuple[float, float],
+                                                                           ...]:
+    return tuple((float(x), float(y)) for x, y in zip(np.linspace(x0, x1, n),
+                                                       np.linspace(y0, y1, n)))
+
+
+def _arc(cx: float, cy: float, r: float, a0_rad: float, a1_rad: float,
+         n: int = 16) -> tuple[tuple[float, float], ...]:
+    a = np.linspace(a0_rad, a1_rad, n)
+    return tuple((float(cx + r * math.cos(t)), float(cy + r * math.sin(t))) for t in a)
+
+
+def _lane(lid: str, pts: tuple[tuple[float, float], ...], *, index: int = 0,
+          speed_mps: float = 13.89, internal: bool = False,
+          successors: Sequence[LaneLink] = ()) -> Lane:
+    arr = np.asarray(pts)
+    length = float(np.sum(np.hypot(*np.diff(arr, axis=0).T)))
+    edge = lid.rsplit("_", 1)[0]
+    return Lane(id=lid, edge_id=edge, index=index, centerline=pts, width_m=LANE_W_M,
+                speed_limit_mps=speed_mps, length_m=length, internal=internal,
+                successors=tuple(successors))
+
+
+def straight_road(*, length_m: float = 300.0, speed_mps: float = 13.89) -> MapSnapshot:
+    """Two eastbound lanes (``E0_0`` right at y=-4.8, ``E0_1`` left at y=-1.6) and one
+    westbound lane ``-E0_0`` at y=+1.6; the ego route is ``E0_0``."""
+    lanes = (
+        _lane("E0_0", _line(0.0, -4.8, length_m, -4.8), index=0, speed_mps=speed_mps),
+        _lane("E0_1", _line(0.0, -1.6, length_m, -1.6), index=1, speed_mps=speed_mps),
+        _lane("-E0_0", _line(length_m, 1.6, 0.0, 1.6), index=0, speed_mps=speed_mps),
+    )
+    return MapSnapshot(stamp_s=0.0, lanes=lanes, ego_route=("E0_0",),
+                       target=TargetArea(lane_ids=("E0_0",), center=(length_m - 10.0, -4.8),
+                                         radius_m=10.0))
+
+
+def four_way_junction(*, arm_m: float = 100.0, speed_mps: float = 13.89,
+                      ego_turn: str = "l") -> MapSnapshot:
+    """An unsignalized 4-way junction at the origin, one lane per direction, junction
+    box +-8 m. Ego comes from the south (``S_in_0``, northbound at x=+1.6) and turns
+    left (``ego_turn="l"``) to ``W_out_0``, goes straight (``"s"``) or right (``"r"``).
+    The oncoming lane ``N_in_0`` (southbound at x=-1.6) goes straight to ``S_out_0``
+    or turns right into ``W_out_0``."""
+    h = 1.6
+    b = 8.0
+    internal = (
+        _lane(":J_0_0", _line(h, -b, h, b), internal=True,
+              successors=[LaneLink(to_lane="N_out_0", direction="s")]),
+        _lane(":J_1_0", _arc(-b, -b, b + h, 0.0, math.pi / 2.0), internal=True,
+              successors=[LaneLink(to_lane="W_out_0", direction="l")]),
+        _lane(":J_2_0", _arc(b, -b, b - h, math.pi, math.pi / 2.0), internal=True,
+              successors=[LaneLink(to_lane="E_out_0", direction="r")]),
+        _lane(":J_3_0", _line(-h, b, -h, -b), internal=True,
+              successors=[LaneLink(to_lane="S_out_0", direction="s")]),
+        _lane(":J_4_0", _arc(-b, b, b - h, 0.0, -math.pi / 2.0), internal=True,
+              successors=[LaneLink(to_lane="W_out_0", direction="r")]),
+    )
+    lanes = (
+        _lane("S_in_0", _line(h, -arm_m, h, -b), speed_mps=speed_mps, successors=[
+            LaneLink(to_lane="N_out_0", via_lane=":J_0_0", direction="s"),
+            LaneLink(to_lane="W_out_0", via_lane=":J_1_0", direction="l"),
+            LaneLink(to_lane="E_out_0", via_lane=":J_2_0", direction="r"),
+        ]),
+        _lane("N_in_0", _line(-h, arm_m, -h, b), speed_mps=speed_mps, successors=[
+            LaneLink(to_lane="S_out_0", via_lane=":J_3_0", direction="s"),
+            LaneLink(to_lane="W_out_0", via_lane=":J_4_0", direction="r"),
+        ]),
+        _lane("N_out_0", _line(h, b, h, arm_m), speed_mps=speed_mps),
+        _lane("S_out_0", _line(-h, -b, -h, -arm_m), speed_mps=speed_mps),
+        _lane("W_out_0", _line(-b, h, -arm_m, h), speed_mps=speed_mps),
+        _lane("E_out_0", _line(b, -h, arm_m, -h), speed_mps=speed_mps),
+    ) + internal
+    via = {"l": (":J_1_0", "W_out_0"), "s": (":J_0_0", "N_out_0"), "r": (":J_2_0", "E_out_0")}
+    v_lane, out = via[ego_turn]
+    end = {"W_out_0": (-arm_m + 10, h), "N_out_0": (h, arm_m - 10),
+           "E_out_0": (arm_m - 10, -h)}[out]
+    return MapSnapshot(
+        stamp_s=0.0, lanes=lanes,
+        stop_lines=(StopLine(lane_id="S_in_0", position=(h, -b), junction_id="J",
+                             signalized=False),
+                    StopLine(lane_id="N_in_0", position=(-h, b), junction_id="J",
+                             signalized=False)),
+        ego_route=("S_in_0", v_lane, out),
+        target=TargetArea(lane_ids=(out,), center=end, radius_m=10.0))
+
+
+def arc_road(*, radius_m: float = 30.0, speed_mps: float = 10.0) -> MapSnapshot:
+    """A single lane ``A_0`` on a counter-clockwise half circle (a roundabout-like
+    arc) around (0, radius), starting at the origin heading east, then ``B_0`` west."""
+    arc = _arc(0.0, radius_m, radius_m, -math.pi / 2.0, math.pi / 2.0, n=40)
+    lanes = (
+        _lane("A_0", arc, speed_mps=speed_mps,
+              successors=[LaneLink(to_lane="B_0", direction="s")]),
+        _lane("B_0", _line(0.0, 2 * radius_m, -100.0, 2 * radius_m), speed_mps=speed_mps),
+    )
+    return MapSnapshot(stamp_s=0.0, lanes=lanes, ego_route=("A_0", "B_0"),
+                       target=TargetArea(lane_ids=("B_0",), center=(-90.0, 2 * radius_m),
+                                         radius_m=10.0))
+
+
+def ego_state(*, x_m: float, y_m: float, yaw_rad: float, v_mps: float = 0.0,
+              stamp_s: float = 0.0, seq: int = 0, lane_id: Optional[str] = None,
+              route_index: int = 0, a_mps2: float = 0.0, steer_rad: float = 0.0,
+              required_decision_id: Optional[str] = None) -> EgoState:
+    """An ego state with the given pose (box centre)."""
+    return EgoState(stamp_s=stamp_s, seq=seq, x_m=x_m, y_m=y_m, yaw_rad=yaw_rad, v_mps=v_mps,
+                    a_mps2=a_mps2, steer_rad=steer_rad, lane_id=lane_id,
+                    route_index=route_index, dist_to_target_m=100.0,
+                    required_decision_id=required_decision_id)
+
+
+def agent(aid: str, *, x_m: float, y_m: float, yaw_rad: float, v_mps: float = 0.0,
+          lane_id: Optional[str] = None, length_m: float = 4.5,
+          width_m: float = 1.8) -> Agent:
+    """A car agent at the given pose."""
+    return Agent(id=aid, kind="car", x_m=x_m, y_m=y_m, yaw_rad=yaw_rad, v_mps=v_mps,
+                 a_mps2=0.0, length_m=length_m, width_m=width_m, lane_id=lane_id)
+
+
+def observation(map_: MapSnapshot, ego: EgoState, agents: Sequence[Agent] = (), *,
+                agents_stamp_s: Optional[float] = None,
+                signals: Optional[SignalStates] = None) -> Observation:
+    """Bundle an observation (agents / signals stamped like the ego unless told)."""
+    t = ego.stamp_s if agents_stamp_s is None else agents_stamp_s
+    return Observation(
+        map=map_, ego=ego,
+        agents=AgentArray(stamp_s=t, seq=ego.seq, agents=tuple(agents)),
+        signals=signals if signals is not None else SignalStates(stamp_s=ego.stamp_s,
+                                                                 seq=ego.seq))
