@@ -7,14 +7,17 @@ package_name = "lmpc_bridge"
 setup(
     name=package_name,
     version="0.1.0",
-    packages=[package_name],
+    packages=[package_name, package_name + ".scenarios"],
     package_data={package_name: ["config/*.yaml", "data/*"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob(package_name + "/config/*.yaml")),
     ],
-    install_requires=["setuptools", "lmpc_msgs_py", "numpy>=1.26,<3", "libsumo>=1.20,<2", "eclipse-sumo>=1.20,<2", "pyyaml>=6,<7"],
+    install_requires=[
+        "setuptools", "lmpc_msgs_py", "numpy>=1.26,<3", "libsumo>=1.20,<2",
+        "eclipse-sumo>=1.20,<2", "pyyaml>=6,<7",
+    ],
     python_requires=">=3.10",
     zip_safe=False,
     maintainer="LanguageMPC ROS 2 maintainers",

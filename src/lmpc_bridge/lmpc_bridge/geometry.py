@@ -64,8 +64,10 @@ def boxes_overlap(a: OrientedBox, b: OrientedBox) -> bool:
 def _point_segment_dist(p: Vec, a: Vec, b: Vec) -> float:
     abx, aby = b[0] - a[0], b[1] - a[1]
     denom = abx * abx + aby * aby
-    t = 0.0 if denom == 0.0 else max(0.0, min(1.0, ((p[0] - a[0]) * abx + (p[1] - a[1]) * aby)
-                                                  / denom))
+    if denom == 0.0:
+        t = 0.0
+    else:
+        t = max(0.0, min(1.0, ((p[0] - a[0]) * abx + (p[1] - a[1]) * aby) / denom))
     return math.hypot(p[0] - a[0] - t * abx, p[1] - a[1] - t * aby)
 
 

@@ -5,7 +5,7 @@ applied (so ``t_s`` of record k is ``k * dt``, k >= 1).
 """
 from __future__ import annotations
 
-from typing import Optional
+from typing import Any, Optional
 
 from pydantic import BaseModel, ConfigDict
 
@@ -72,3 +72,7 @@ class EpisodeRecord(_Frozen):
     reached_at_s: Optional[float] = None
     collided_with: Optional[str] = None
     steps: tuple[StepRecord, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-able dict of the record (``json.dumps`` it, or use ``model_dump_json()``)."""
+        return self.model_dump(mode="json")

@@ -233,6 +233,15 @@ class SumoSim:
         return self._map
 
     @property
+    def dt_s(self) -> float:
+        """Simulation step (s): SUMO's step length and the ego integration step."""
+        return DT_S
+
+    @property
+    def vehicle(self) -> VehicleParams:
+        return self._vehicle
+
+    @property
     def time_s(self) -> float:
         return round(self._step_index * DT_S, 6)
 
@@ -271,15 +280,18 @@ class SumoSim:
                 del self._history[vid]  # out of range: history restarts when seen again
         route = self._route
         if route is not None:
-            self._route_index = route.index_of(self._ego_lane,
-                                                      previous_index=self._route_index)
+            self._route_index = route.index_of(self._ego_lane, previous_index=self._route_index)
             on_route = (self._ego_lane is not None
-                        and route.index_of(self._ego_lane, previous_index=0)
-                        == self._route_index)
-            pos = self._ego_lane_pos_m if on_route else 0.0
-            self._dist_to_target_m = max(
-                route.dist_to_target_m(self._route_index, pos)
-                + self._vehicle.length_m / 2.0, 0.0)
+                        and route.index_of(self._ego_lane, previous_index=0) == self._route_index)
+            if on_route or self._step_index == 0:
+                self._dist_to_target_m = max(
+                    route.dist_to_target_m(self._route_index, self._ego_lane_pos_m)
+                    + self._vehicle.length_m / 2.0, 0.0)
+            else:
+                # SUMO mapped the ego to a lane off its route (keepRoute=2 picks the nearest
+                # lane, e.g. a crossing internal lane): dead-reckon the route distance.
+                self._dist_to_target_m = max(self._dist_to_target_m - self._pose.v_mps * DT_S,
+                                             0.0)
         self._signals = self._read_signals()
 
     def _convert(self, vid: str, vals: dict[int, Any]) -> _Seen:
@@ -294,8 +306,8 @@ class SumoSim:
             v_max = min(float(vals.get(tc.VAR_ALLOWED_SPEED, 0.0)),
                         float(vals.get(tc.VAR_MAXSPEED, 70.0)))
         else:
-            length, width, kind, accel, signals = _PERSON_LENGTH_M, _PERSON_WIDTH_M, \
-                "pedestrian", 0.0, 0
+            length, width, kind = _PERSON_LENGTH_M, _PERSON_WIDTH_M, "pedestrian"
+            accel, signals = 0.0, 0
             v_max = 1.5
         fx, fy = vals[tc.VAR_POSITION]
         # SUMO reports the front bumper; our convention is the box centre.

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import pytest
 
@@ -49,7 +48,8 @@ def test_stop_lines_and_target(usi_map) -> None:
     exit_lane = next(lane for lane in snap.lanes if lane.id == snap.ego_route[-1])
     # the target centre lies on the exit lane's centerline, 40 m in
     (x0, y0), (x1, y1) = exit_lane.centerline[0], exit_lane.centerline[-1]
-    cross = abs((x1 - x0) * (snap.target.center[1] - y0) - (y1 - y0) * (snap.target.center[0] - x0))
+    tx, ty = snap.target.center
+    cross = abs((x1 - x0) * (ty - y0) - (y1 - y0) * (tx - x0))
     assert cross / math.dist((x0, y0), (x1, y1)) < 0.1
     assert math.dist((x0, y0), snap.target.center) == pytest.approx(40.0, abs=0.5)
 

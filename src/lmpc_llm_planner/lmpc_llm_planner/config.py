@@ -28,68 +28,69 @@ class _Frozen(BaseModel):
 class RulesConfig(_Frozen):
     """Knobs of the deterministic ``rules`` reasoner (backends/rules.py)."""
 
-    safe_gap_s: float = Field(3.0, gt=0.0, le=30.0)
-    """A left turn may go when every oncoming agent reaches the conflict area at least
-    this long after the ego has cleared it."""
-    conservative_gap_factor: float = Field(1.5, ge=1.0, le=5.0)
+    safe_gap_s: float = Field(default=2.0, gt=0.0, le=30.0)
+    """A left turn may go when every oncoming agent reaches the crossing at least this
+    long after the ego has cleared it (a post-encroachment-time margin; the ego's clear
+    time already includes accelerating through the turn)."""
+    conservative_gap_factor: float = Field(default=1.5, ge=1.0, le=5.0)
     """Multiplies ``safe_gap_s`` when the user asks for conservative / careful driving."""
-    turn_accel_mps2: float = Field(1.5, gt=0.0, le=5.0)
+    turn_accel_mps2: float = Field(default=1.5, gt=0.0, le=5.0)
     """Acceleration the ego is assumed to use from its current speed when it goes."""
-    turn_speed_mps: float = Field(6.0, gt=0.0, le=20.0)
+    turn_speed_mps: float = Field(default=6.0, gt=0.0, le=20.0)
     """Speed cap assumed through the turn when estimating the ego's time to clear."""
-    junction_attention_m: float = Field(70.0, gt=0.0, le=500.0)
+    junction_attention_m: float = Field(default=70.0, gt=0.0, le=500.0)
     """The yield rule applies once the ego is this close to the stop line of its turn."""
-    nearby_attention_m: float = Field(20.0, gt=0.0, le=200.0)
+    nearby_attention_m: float = Field(default=20.0, gt=0.0, le=200.0)
     """Agents within this distance of the ego are always attended."""
-    leader_range_m: float = Field(60.0, gt=0.0, le=300.0)
+    leader_range_m: float = Field(default=60.0, gt=0.0, le=300.0)
     """Range in which the nearest agent ahead in the ego's lane counts as its leader."""
-    oncoming_heading_tol_rad: float = Field(0.8, gt=0.0, le=1.6)
+    oncoming_heading_tol_rad: float = Field(default=0.8, gt=0.0, le=1.6)
     """Heading difference from exactly opposite within which an agent counts as oncoming."""
-    stop_margin_m: float = Field(1.0, ge=0.0, le=10.0)
+    stop_margin_m: float = Field(default=1.0, ge=0.0, le=10.0)
     """Stop this far before the stop line."""
-    moving_speed_mps: float = Field(0.5, ge=0.0, le=5.0)
+    moving_speed_mps: float = Field(default=0.5, ge=0.0, le=5.0)
     """Below this an agent counts as stopped."""
 
 
 class PlannerConfig(_Frozen):
     """Everything the planner core needs; the node maps its ROS parameters into this once."""
 
-    period_s: float = Field(2.5, gt=0.0, le=60.0)
+    period_s: float = Field(default=2.5, gt=0.0, le=60.0)
     """Simulated time between normal decision requests (the paper's low frequency)."""
-    ttl_s: float = Field(5.0, gt=0.0, le=60.0)
+    ttl_s: float = Field(default=5.0, gt=0.0, le=60.0)
     """Time to live of a decision, from the stamp of the observation it used."""
-    fixed_latency_s: Optional[float] = Field(None, ge=0.0, le=600.0)
+    fixed_latency_s: Optional[float] = Field(default=None, ge=0.0, le=600.0)
     """When set, reported as every decision's latency instead of the measured wall time
     (repeatable runs with a simulated LLM delay)."""
     backend: BackendName = "rules"
     """Which backend answers (see ``lmpc_llm_planner.backends``)."""
     stages: Literal["single", "chained"] = "single"
     """``single``: one call answers all three stages; ``chained``: one call per stage."""
-    emergency_ttc_s: float = Field(2.0, gt=0.0, le=20.0)
+    emergency_ttc_s: float = Field(default=2.0, gt=0.0, le=20.0)
     """An agent on a collision course with a time to collision below this trips an
     emergency request (short prompt, no scenario encoding)."""
-    emergency_min_gap_m: float = Field(4.0, ge=0.0, le=50.0)
+    emergency_min_gap_m: float = Field(default=4.0, ge=0.0, le=50.0)
     """An agent closing in with a box-to-box gap below this also trips an emergency."""
-    emergency_min_interval_s: float = Field(0.5, gt=0.0, le=60.0)
+    emergency_min_interval_s: float = Field(default=0.5, gt=0.0, le=60.0)
     """Emergency requests come at most this often (simulated time)."""
-    safety_floor_ttc_s: float = Field(4.0, ge=0.0, le=60.0)
+    safety_floor_ttc_s: float = Field(default=4.0, ge=0.0, le=60.0)
     """Agents with a time to collision below this stay attended whatever the backend says."""
-    safety_floor_dist_m: float = Field(12.0, ge=0.0, le=200.0)
+    safety_floor_dist_m: float = Field(default=12.0, ge=0.0, le=200.0)
     """Agents closer than this (centre to centre) stay attended whatever the backend says."""
-    deadline_s: float = Field(8.0, gt=0.0, le=600.0)
+    deadline_s: float = Field(default=8.0, gt=0.0, le=600.0)
     """Wall time a backend call may take; a later reply is discarded (timeout)."""
-    max_retries: int = Field(1, ge=0, le=5)
+    max_retries: int = Field(default=1, ge=0, le=5)
     """Re-asks (carrying the validation error) before a fallback decision."""
     decision_log: Optional[str] = None
     """JSON-lines decision log path; None = no log."""
-    lookahead_m: float = Field(60.0, gt=0.0, le=500.0)
+    lookahead_m: float = Field(default=60.0, gt=0.0, le=500.0)
     """Length of the reference candidates offered in the prompt."""
-    max_agents_in_prompt: int = Field(20, ge=0, le=200)
+    max_agents_in_prompt: int = Field(default=20, ge=0, le=200)
     """The nearest agents described in the prompt (others are not offered for attention;
     the safety floor still applies to every observed agent)."""
-    chars_per_token: float = Field(4.0, gt=0.0, le=20.0)
+    chars_per_token: float = Field(default=4.0, gt=0.0, le=20.0)
     """Token count ESTIMATE for backends that do not report tokens (~4 chars per token)."""
-    max_output_chars: int = Field(32000, ge=100, le=1_000_000)
+    max_output_chars: int = Field(default=32000, ge=100, le=1_000_000)
     """Backend replies longer than this are refused before parsing."""
     rules: RulesConfig = RulesConfig()
 

@@ -210,4 +210,3 @@ class DecisionNode(LmpcNode):
         }
         extra.update(self.core_counters())
         self.publish_diagnostics(level, message, extra)
-

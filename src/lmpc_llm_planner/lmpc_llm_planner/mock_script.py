@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Literal, Optional, Union
+from typing import Any, Literal, Optional, Union
 
 import yaml
 from lmpc_mpc.config import MpcConfig
@@ -60,13 +60,13 @@ class MockEntry(_Strict):
 
     from_s: float = Field(ge=0.0)
     preset: Literal["stop", "go", "baseline"] = "baseline"
-    accel_interval: Optional[int] = Field(None, ge=0)
-    steer_interval: Optional[int] = Field(None, ge=0)
-    ego_trajectory: Optional[int] = Field(None, ge=0, le=2)
+    accel_interval: Optional[int] = Field(default=None, ge=0)
+    steer_interval: Optional[int] = Field(default=None, ge=0)
+    ego_trajectory: Optional[int] = Field(default=None, ge=0, le=2)
     """Index among the offered ego candidates; None = the route candidate."""
     weights: WeightOverrides = WeightOverrides()
     attention: Union[Literal["all"], list[str]] = "all"
-    reasoning: str = Field("", max_length=2000)
+    reasoning: str = Field(default="", max_length=2000)
 
 
 class MockScript(_Strict):
@@ -159,8 +159,8 @@ class MockPlanner:
         cfg = self.mpc_config
         scene = build_scene(obs, lookahead_m=self.lookahead_m, max_agents=200)
         accel = cfg.accel_intervals_mps2
-        levels = {"tracking": "normal", "action": "normal", "smoothness": "normal",
-                  "safety": "normal"}
+        levels: dict[str, Any] = {"tracking": "normal", "action": "normal",
+                                  "smoothness": "normal", "safety": "normal"}
         a_idx = cfg.neutral_accel_index
         if entry.preset == "stop":
             a_idx = min(range(len(accel)), key=lambda i: (_mid(accel[i]), i))

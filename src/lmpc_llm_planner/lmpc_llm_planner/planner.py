@@ -20,7 +20,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Literal, Optional
+from typing import Any, Literal, Optional
 
 from lmpc_mpc.config import MpcConfig
 from lmpc_mpc.reference import ReferencePathError
@@ -162,6 +162,35 @@ def _call_with_deadline(
     return reply
 
 
+def build_request(
+    scene: Scene,
+    *,
+    config: PlannerConfig,
+    mpc_config: MpcConfig,
+    mode: Mode = "normal",
+    stage: Stage = "all",
+    instruction: Optional[str] = None,
+    previous: Optional[Decision] = None,
+    retry_error: Optional[str] = None,
+    prior_stages: Optional[dict[str, Any]] = None,
+) -> DecisionRequest:
+    """The request for one backend call: prompt text plus the structured inputs."""
+    prompt = build_prompt(
+        scene, mpc_config=mpc_config, mode=mode, stage=stage, instruction=instruction,
+        previous=previous, retry_error=retry_error, prior_stages=prior_stages or None,
+        chars_per_token=config.chars_per_token,
+    )
+    return DecisionRequest(
+        prompt=prompt.text, mode=mode, scene=scene,
+        accel_intervals_mps2=mpc_config.accel_intervals_mps2,
+        steer_intervals_rad=mpc_config.steer_intervals_rad,
+        json_schema=decision_json_schema(mode=mode, stage=stage), stage=stage,
+        prior_stages=dict(prior_stages or {}), instruction=instruction, previous=previous,
+        retry_error=retry_error, tokens_estimate=prompt.tokens_estimate,
+        deadline_s=config.deadline_s,
+    )
+
+
 class PlannerCore:
     """Decisions from observations; see the module docstring."""
 
@@ -264,28 +293,19 @@ class PlannerCore:
         for attempt in range(self.config.max_retries + 1):
             if attempt:
                 self.counters.retries += 1
-            prompt = build_prompt(
-                scene, mpc_config=self.mpc_config, mode=mode, stage=stage,
+            request = build_request(
+                scene, config=self.config, mpc_config=self.mpc_config, mode=mode, stage=stage,
                 instruction=self.instruction, previous=self.last_decision,
-                retry_error=retry_error, prior_stages=prior or None,
-                chars_per_token=self.config.chars_per_token,
-            )
-            request = DecisionRequest(
-                prompt=prompt.text, mode=mode, scene=scene,
-                accel_intervals_mps2=self.mpc_config.accel_intervals_mps2,
-                steer_intervals_rad=self.mpc_config.steer_intervals_rad,
-                json_schema=decision_json_schema(mode=mode, stage=stage), stage=stage,
-                prior_stages=dict(prior), instruction=self.instruction,
-                previous=self.last_decision, retry_error=retry_error,
-                tokens_estimate=prompt.tokens_estimate, deadline_s=self.config.deadline_s,
+                retry_error=retry_error, prior_stages=prior,
             )
             self.counters.backend_calls += 1
             reply = _call_with_deadline(self.backend, request, self.config.deadline_s)
-            tokens_in = reply.tokens_in or prompt.tokens_estimate
+            tokens_in = reply.tokens_in or request.tokens_estimate
             tokens_out = reply.tokens_out or estimate_tokens(
                 reply.text or "", chars_per_token=self.config.chars_per_token
             )
-            sha = hashlib.sha256(prompt.text.encode("utf-8")).hexdigest()
+            sha = hashlib.sha256(request.prompt.encode("utf-8")).hexdigest()
+            kind: Optional[str]
             if not reply.ok:
                 kind, msg = reply.error_kind or "transport", reply.error or "no text"
                 wire = None
@@ -309,7 +329,7 @@ class PlannerCore:
         if self.config.stages == "single":
             wire = self._ask(scene, mode, "all", {}, attempts)
         else:
-            answers = []
+            answers: list[Any] = []
             prior: dict[str, Any] = {}
             stages = STAGE_ORDER[1:] if mode == "emergency" else STAGE_ORDER
             for stage in stages:
@@ -389,4 +409,3 @@ class PlannerCore:
         except OSError:
             # A full disk must not stop the car: count it, keep deciding.
             self.counters.errors["log"] += 1
-

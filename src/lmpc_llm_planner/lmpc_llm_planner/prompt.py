@@ -60,11 +60,12 @@ def estimate_tokens(text: str, *, chars_per_token: float = 4.0) -> int:
 
 
 def sanitize_instruction(text: str) -> str:
-    """Untrusted user text made safe to quote: control characters removed, length capped."""
+    """Untrusted user text made safe to quote: control characters removed, double quotes
+    turned into single ones (it stays inside one quoted string), length capped."""
     cleaned = "".join(
         ch if ch in "\n\t" or unicodedata.category(ch)[0] != "C" else " " for ch in text
     )
-    return " ".join(cleaned.split())[:MAX_INSTRUCTION_CHARS]
+    return " ".join(cleaned.replace('"', "'").split())[:MAX_INSTRUCTION_CHARS]
 
 
 def _interval_lines(
@@ -145,7 +146,8 @@ def _road_lines(scene: Scene) -> list[str]:
 
 def _candidate_lines(cands: Any, *, route_id: Optional[int] = None) -> list[str]:
     return [
-        f"    [{c.candidate_id}] {c.label}" + (" (your route)" if c.candidate_id == route_id else "")
+        f"    [{c.candidate_id}] {c.label}"
+        + (" (your route)" if c.candidate_id == route_id else "")
         for c in cands
     ]
 
@@ -231,10 +233,10 @@ def build_prompt(
         ]
         agent_lines = [line for v in scene.agents for line in _agent_lines(v)]
         out += agent_lines or ["- none"]
-    out += ["Acceleration intervals:", *_interval_lines("accel", accel, "m/s2",
-                                                       _accel_words(accel))]
-    out += ["Steering intervals (+ = left):", *_interval_lines("steer", steer, "rad",
-                                                               _steer_words(steer))]
+    out += ["Acceleration intervals:"]
+    out += _interval_lines("accel", accel, "m/s2", _accel_words(accel))
+    out += ["Steering intervals (+ = left):"]
+    out += _interval_lines("steer", steer, "rad", _steer_words(steer))
     out.append(
         "Weight levels (low | normal | high): tracking (follow the reference), action (stick "
         "to the chosen intervals), smoothness (gentle changes), safety (distance to attended "
@@ -257,4 +259,5 @@ def build_prompt(
     if retry_error:
         out.append(f"Your previous answer was refused: {retry_error}. Answer again.")
     text = "\n".join(out)
-    return Prompt(text=text, tokens_estimate=estimate_tokens(text, chars_per_token=chars_per_token))
+    tokens = estimate_tokens(text, chars_per_token=chars_per_token)
+    return Prompt(text=text, tokens_estimate=tokens)

@@ -202,7 +202,9 @@ def _straight_line(agent: Agent) -> Candidate:
     )
 
 
-def agent_candidates(obs: Observation, agent: Agent, *, lookahead_m: float) -> tuple[Candidate, ...]:
+def agent_candidates(
+    obs: Observation, agent: Agent, *, lookahead_m: float
+) -> tuple[Candidate, ...]:
     """The (up to three) candidates of an agent, renumbered 0..n-1; never empty."""
     cands = candidates_for_pose(
         obs.map, x_m=agent.x_m, y_m=agent.y_m, yaw_rad=agent.yaw_rad, lane_id=agent.lane_id,

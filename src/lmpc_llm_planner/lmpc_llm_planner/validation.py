@@ -42,6 +42,8 @@ ParseErrorKind = Literal[
     "out_of_range", "no_lane",
 ]
 DEFAULT_MAX_CHARS = 32000
+MAX_ATTENTION = 200
+"""``Decision.attention`` holds at most this many ids."""
 
 
 @dataclass(frozen=True)
@@ -297,6 +299,8 @@ def apply_safety_floor(
     for kin in scene.all_kinematics:
         if kin.agent.id in attended:
             continue
+        if len(attended) >= MAX_ATTENTION:
+            break  # the message holds at most 200; nearest first, so the closest are in
         urgent = kin.ttc_s is not None and kin.ttc_s < ttc_s
         if not (urgent or kin.distance_m < dist_m):
             continue

@@ -150,6 +150,8 @@ class MpcConfig(BaseModel):
     """Acceleration intervals of the action guidance, sorted; midpoints are the bias [m/s^2]."""
     steer_intervals_rad: tuple[Interval, ...]
     """Steer-angle intervals of the action guidance, sorted; midpoints are the bias [rad]."""
+    lateral_weight_factor: float = Field(10.0, ge=1.0, le=1000.0)
+    """The lateral position error to the reference weighs this many times W_x."""
     reference_accel_mps2: float = Field(1.5, gt=0.0, le=10.0)
     """Acceleration the reference speed profile assumes from the current speed [m/s^2]."""
     reference_lat_accel_mps2: float = Field(2.5, gt=0.0, le=10.0)

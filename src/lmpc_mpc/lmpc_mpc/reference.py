@@ -402,11 +402,13 @@ def _path_geometry(points: np.ndarray, ds_m: float) -> tuple[_Polyline, np.ndarr
 def timed_reference(points: np.ndarray, *, v0_mps: float, v_max_mps: float, a_max_mps2: float,
                     a_lat_max_mps2: float, horizon: int, dt_s: float,
                     a_dec_mps2: float | None = None, stop_at_m: float | None = None,
-                    ds_m: float = 0.5) -> TimedReference:
+                    s_limit_m: np.ndarray | None = None, ds_m: float = 0.5) -> TimedReference:
     """Time-parameterise a path; see :func:`time_parameterize`. Also returns curvature.
 
     ``stop_at_m``: arc length where the reference must come to rest (red light).
     ``a_dec_mps2``: deceleration the profile plans with (default ``2 * a_max``).
+    ``s_limit_m``: (horizon+1,) largest arc length allowed at step k (a lead vehicle's
+    predicted position minus a gap); the profile brakes for it with ``a_dec``.
     """
     pts = np.asarray(points, dtype=float)
     if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
@@ -439,8 +441,16 @@ def timed_reference(points: np.ndarray, *, v0_mps: float, v_max_mps: float, a_ma
         states[k] = (xy[0], xy[1], _wrap(yk), v)
         curv[k] = ck
         target = float(np.interp(pos, s, v_b)) if pos <= s_end else end_v
+        if s_limit_m is not None and k + 1 < len(s_limit_m):
+            room = max(0.0, float(s_limit_m[k + 1]) - pos)
+            target = min(target, math.sqrt(2.0 * dec * room))
         v_next = min(target, v + a_max_mps2 * dt_s) if v < target else max(target, v - dec * dt_s)
+        prev = pos
         pos += 0.5 * (v + v_next) * dt_s
+        if s_limit_m is not None and k + 1 < len(s_limit_m):
+            # never backwards: a reference that reverses would pull the car back
+            pos = max(prev, min(pos, float(s_limit_m[k + 1])))
+            v_next = min(v_next, (pos - prev) / dt_s * 2.0)
         v = max(0.0, v_next)
     return TimedReference(states=states, curvature_1pm=curv, path=line.at(s))
 
@@ -456,3 +466,11 @@ def time_parameterize(points: np.ndarray, *, v0_mps: float, v_max_mps: float, a_
     """
     return timed_reference(points, v0_mps=v0_mps, v_max_mps=v_max_mps, a_max_mps2=a_max_mps2,
                            a_lat_max_mps2=a_lat_max_mps2, horizon=horizon, dt_s=dt_s).states
+
+
+def lane_at(map: MapSnapshot, *, x_m: float, y_m: float, yaw_rad: float,
+            lane_id: str | None) -> Optional[Lane]:
+    """The vehicle's lane (``lane_id`` if the map has it, else the best fitting lane)."""
+    idx = _index(map)
+    where = _locate(idx, x_m, y_m, yaw_rad, lane_id)
+    return None if where is None else idx.lanes[where[0]]

@@ -7,8 +7,10 @@ Problem (stage-wise, so FATROP's structure detection finds the OCP):
   the first and second differences of ``A`` stay stage-local;
 - control ``A_k = (a_k, delta_k)``, dynamics one RK4 step of length ``dt``;
 - cost ``sum_k C_trk + C_act + C_saf``:
-  ``C_trk = W_x |p - p_ref|^2 + W_v (v - v_ref)^2 + W_yaw 2(1 - cos(yaw - yaw_ref))
+  ``C_trk = W_x (e_lon^2 + f_lat e_lat^2) + W_v (v - v_ref)^2 + W_yaw 2(1 - cos(yaw - yaw_ref))
   + W_steer (delta - delta_ref)^2`` (``delta_ref`` from the reference curvature);
+  (position error in the reference frame, the lateral part weighted ``f_lat`` =
+  ``lateral_weight_factor`` more, so the baseline brakes rather than leaves its lane);
   ``C_act = (A - A_hat)^T W_s (A - A_hat) + dA^T W_g dA + d2A^T W_l d2A``;
   ``C_saf = w_saf sum_i on_i max(0, d_hat_ik - d_ik)^2`` with
   ``d_hat_ik = g_i + h_ik v_k`` (gap + half-lengths, time headway only for agents ahead)
@@ -25,6 +27,7 @@ parameters of one compiled problem per number of obstacle slots. Unused slots ha
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from typing import Optional, Sequence
@@ -39,10 +42,11 @@ NX = 8
 NU = 2
 NREF = 5
 NOBS = 6
-N_W = 13  # weights: pos, v, yaw, steer_trk, s_a, s_d, g_a, g_d, l_a, l_d, saf, bias_a, bias_d
+N_W = 14  # pos, v, yaw, steer_trk, s_a, s_d, g_a, g_d, l_a, l_d, saf, bias_a, bias_d, lat
 _EPS_D2 = 1e-2
-import os
 JIT = os.environ.get("LMPC_MPC_JIT", "0") == "1"
+"""Compile the NLP functions with gcc (CasADi JIT): ~3x faster solves, but ~1 min to
+build each problem size at start-up, so it is opt-in (``LMPC_MPC_JIT=1``)."""
 
 
 class MpcInputError(ValueError):
@@ -183,7 +187,7 @@ class MpcSolver:
         p_st = [ca.SX.sym(f"p{k}", n_stage_p) for k in range(n + 1)]
         xs = [ca.SX.sym(f"x{k}", NX) for k in range(n + 1)]
         us = [ca.SX.sym(f"u{k}", NU) for k in range(n)]
-        (w_pos, w_v, w_yaw, w_str, s_a, s_d, g_a, g_d, l_a, l_d, w_saf, b_a, b_d) = \
+        (w_pos, w_v, w_yaw, w_str, s_a, s_d, g_a, g_d, l_a, l_d, w_saf, b_a, b_d, w_lat) = \
             [p_w[i] for i in range(N_W)]
         rate = veh.max_steer_rate_radps * dt
         w_vars: list[ca.SX] = []
@@ -219,7 +223,8 @@ class MpcSolver:
             else:
                 lbx += x_lb
                 ubx += x_ub
-                cost += self._stage_cost(x, p_st[k], n_slots, w_pos, w_v, w_yaw, w_saf)
+                cost += self._stage_cost(x, p_st[k], n_slots, w_pos, w_v, w_yaw, w_saf,
+                                         w_lat)
             if k < n:
                 u = us[k]
                 w_vars.append(u)
@@ -281,11 +286,15 @@ class MpcSolver:
 
     @staticmethod
     def _stage_cost(x: ca.SX, p: ca.SX, n_slots: int, w_pos: ca.SX, w_v: ca.SX,
-                    w_yaw: ca.SX, w_saf: ca.SX) -> ca.SX:
+                    w_yaw: ca.SX, w_saf: ca.SX, lat_factor: ca.SX) -> ca.SX:
         xr, yr, yawr, vr = p[0], p[1], p[2], p[3]
-        c = w_pos * ((x[0] - xr) ** 2 + (x[1] - yr) ** 2) + w_v * (x[3] - vr) ** 2
-        c += w_yaw * 2.0 * (1.0 - ca.cos(x[2] - yawr))
         cy, sy = ca.cos(yawr), ca.sin(yawr)
+        ex, ey = x[0] - xr, x[1] - yr
+        # W_x is diagonal in the reference frame: the lateral error weighs lat_factor more
+        e_lon = cy * ex + sy * ey
+        e_lat = -sy * ex + cy * ey
+        c = w_pos * (e_lon ** 2 + lat_factor * e_lat ** 2) + w_v * (x[3] - vr) ** 2
+        c += w_yaw * 2.0 * (1.0 - ca.cos(x[2] - yawr))
         for i in range(n_slots):
             o = p[NREF + NOBS * i: NREF + NOBS * (i + 1)]
             ox, oy, gap, headway, rho, on = o[0], o[1], o[2], o[3], o[4], o[5]
@@ -328,7 +337,8 @@ class MpcSolver:
             w.action.w_accel, w.action.w_steer,
             w.smoothness.w_g_accel, w.smoothness.w_g_steer,
             w.smoothness.w_l_accel, w.smoothness.w_l_steer,
-            w.safety.w_saf, prob.bias[0], prob.bias[1]], dtype=float)
+            w.safety.w_saf, prob.bias[0], prob.bias[1], cfg.lateral_weight_factor],
+            dtype=float)
         stage = np.zeros((n + 1, NREF + NOBS * n_slots))
         # unwrap the reference yaw next to the current yaw so 1 - cos never sees a jump
         yaw_ref = np.unwrap(np.concatenate([[prob.x0[2]], ref[:, 2]]))[1:]
@@ -415,7 +425,10 @@ class MpcSolver:
             return self._fail(f"solver error: {str(exc).splitlines()[0][:120]}", t0, 0)
         elapsed = time.perf_counter() - t0
         stats = comp.solver.stats()
-        status = str(stats.get("return_status", "unknown"))
+        ok = bool(stats.get("success", False))
+        raw = stats.get("return_status", "unknown")
+        status = ("Solve_Succeeded" if ok else f"failed ({raw})") if isinstance(raw, int) \
+            else str(raw)
         iters = int(stats.get("iter_count", 0) or 0)
         wsol = np.asarray(sol["x"]).ravel()
         stage = np.empty((n + 1, NX + NU))
@@ -429,7 +442,7 @@ class MpcSolver:
         stage[:, :NX] = xs
         stage[:n, NX:] = us
         stage[n, NX:] = us[-1]
-        if not bool(stats.get("success", False)):
+        if not ok:
             return self._fail(f"not converged: {status}", t0, iters, elapsed)
         if not (np.all(np.isfinite(xs)) and np.all(np.isfinite(us))):
             return self._fail("non-finite solution", t0, iters, elapsed)

@@ -257,7 +257,8 @@ class RulesBackend:
         """The conflict when the agent is oncoming and its path crosses the ego's turn."""
         cfg = self.config
         ag = view.agent
-        if abs(wrap_rad(ag.yaw_rad - man.approach_yaw_rad - math.pi)) > cfg.oncoming_heading_tol_rad:
+        off_rad = abs(wrap_rad(ag.yaw_rad - man.approach_yaw_rad - math.pi))
+        if off_rad > cfg.oncoming_heading_tol_rad:
             return None
         # On a lane whose connections all turn the same way as the ego (an opposite
         # left-turn lane in right-hand traffic) the agent's path does not cross ours.

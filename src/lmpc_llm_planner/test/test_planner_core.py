@@ -1,0 +1,182 @@
+"""PlannerCore: cadence, emergency pre-evaluation, re-ask and fallback, log, ids."""
+from __future__ import annotations
+
+import json
+import math
+import time
+
+import pytest
+from lmpc_mpc import synthetic as syn
+
+from lmpc_llm_planner.backends.base import BackendReply, DecisionRequest
+from lmpc_llm_planner.backends.rules import RulesBackend
+from lmpc_llm_planner.config import PlannerConfig
+from lmpc_llm_planner.planner import PlannerCore, emergency_check
+
+
+def cfg_with(base: PlannerConfig, **kw) -> PlannerConfig:
+    return PlannerConfig.model_validate({**base.model_dump(), **kw})
+
+
+class Recording:
+    """Wraps a backend (or a list of canned replies) and records the requests."""
+
+    name = "llm:fake"
+
+    def __init__(self, replies=None, *, raise_exc: bool = False, sleep_s: float = 0.0):
+        self.replies = list(replies or [])
+        self.raise_exc = raise_exc
+        self.sleep_s = sleep_s
+        self.requests: list[DecisionRequest] = []
+        self.rules = RulesBackend()
+
+    def complete(self, request: DecisionRequest) -> BackendReply:
+        self.requests.append(request)
+        if self.sleep_s:
+            time.sleep(self.sleep_s)
+        if self.raise_exc:
+            raise ConnectionError("connection refused")
+        if self.replies:
+            return BackendReply(text=self.replies.pop(0), latency_s=0.0)
+        return self.rules.complete(request)
+
+
+def run(core: PlannerCore, map_, obs_factory, *, t_end_s: float, agents_at=lambda t: ()):
+    out = []
+    for k in range(int(round(t_end_s / 0.1)) + 1):
+        t = k * 0.1
+        d = core.on_observation(obs_factory(map_, ego_v_mps=0.0, stamp_s=t, seq=k,
+                                            agents=agents_at(t)))
+        if d is not None:
+            out.append(d)
+    return out
+
+
+def test_cadence_every_period(left_turn_map, obs_factory, planner_config, mpc_config):
+    core = PlannerCore(planner_config, RulesBackend(), mpc_config)
+    ds = run(core, left_turn_map, obs_factory, t_end_s=10.0)
+    assert [round(d.stamp_s, 3) for d in ds] == [0.0, 2.5, 5.0, 7.5, 10.0]
+    assert all(d.mode == "normal" and d.source == "rules" for d in ds)
+    assert len({d.decision_id for d in ds}) == len(ds)
+    assert ds[1].decision_id == "2500-2"
+    assert core.counters.decisions == 5 and core.counters.fallbacks == 0
+
+
+def head_on(t_s: float):
+    # A car in the ego's lane coming head-on, 20 m ahead at 10 m/s (TTC ~ 1.6 s).
+    return [syn.agent("wrongway", x_m=1.6, y_m=-20.0, yaw_rad=-math.pi / 2, v_mps=10.0,
+                      lane_id="S_in_0")]
+
+
+def test_emergency_trips_early_and_is_rate_limited(left_turn_map, obs_factory,
+                                                   planner_config, mpc_config):
+    core = PlannerCore(planner_config, RulesBackend(), mpc_config)
+    ds = run(core, left_turn_map, obs_factory, t_end_s=2.0,
+             agents_at=lambda t: head_on(t) if t >= 1.0 - 1e-9 else ())
+    stamps = [round(d.stamp_s, 3) for d in ds]
+    assert stamps == [0.0, 1.0, 1.5, 2.0]  # normal at 0, emergencies every 0.5 s from 1.0
+    assert [d.mode for d in ds] == ["normal", "emergency", "emergency", "emergency"]
+    assert ds[1].accel_bias_mps2 < 0.0 and "wrongway" in ds[1].attention
+    assert core.counters.emergencies == 3
+
+
+def test_emergency_check_ignores_parallel_traffic(left_turn_map, obs_factory, planner_config,
+                                                  oncoming_factory):
+    passing = oncoming_factory("car1", y_m=-30.0, v_mps=10.0)  # adjacent opposite lane
+    obs = obs_factory(left_turn_map, ego_y_m=-40.0, ego_v_mps=10.0, agents=[passing])
+    assert not emergency_check(obs, planner_config).tripped
+    obs2 = obs_factory(left_turn_map, ego_y_m=-40.0, ego_v_mps=10.0, agents=head_on(0.0))
+    check = emergency_check(obs2, planner_config)
+    assert check.tripped and check.agent_id == "wrongway" and check.ttc_s < 2.0
+
+
+def test_transport_error_retries_once_then_falls_back(left_turn_map, obs_factory,
+                                                      planner_config, mpc_config, tmp_path):
+    backend = Recording(raise_exc=True)
+    log = tmp_path / "decisions.jsonl"
+    core = PlannerCore(planner_config, backend, mpc_config, log_path=log)
+    agents = [syn.agent("car1", x_m=-1.6, y_m=30.0, yaw_rad=-math.pi / 2, v_mps=10.0,
+                        lane_id="N_in_0")]
+    d = core.on_observation(obs_factory(left_turn_map, agents=agents))
+    assert len(backend.requests) == 2  # one call plus one re-ask
+    assert d.source == "fallback"
+    assert d.attention == ("car1",)  # baseline: every agent in range
+    assert d.accel_interval == mpc_config.neutral_accel_index
+    assert set(d.weights.model_dump().values()) == {"normal"}
+    c = core.counters
+    assert (c.fallbacks, c.retries, c.errors["transport"], c.backend_calls) == (1, 1, 2, 2)
+    rec = json.loads(log.read_text().splitlines()[-1])
+    assert rec["source"] == "fallback" and rec["error_kind"] == "transport"
+    assert len(rec["attempts"]) == 2 and rec["attempts"][0]["prompt_sha256"]
+
+
+def test_invalid_output_is_re_asked_with_the_error(left_turn_map, obs_factory,
+                                                   planner_config, mpc_config):
+    backend = Recording(["Sure, let me think about this junction..."])
+    core = PlannerCore(planner_config, backend, mpc_config)
+    d = core.on_observation(obs_factory(left_turn_map))
+    assert d.source == "llm:fake"
+    assert backend.requests[0].retry_error is None
+    assert "prose" in backend.requests[1].retry_error
+    assert "refused" in backend.requests[1].prompt
+    assert core.counters.errors["prose"] == 1 and core.counters.fallbacks == 0
+
+
+@pytest.mark.parametrize("bad", ["", "```json\n{}\n```", '{"reasoning": "x"}',
+                                 '{"a": 1}{"b": 2}', "null", "[1, 2]", '{"reasoning": NaN}'])
+def test_never_raises_on_garbage(left_turn_map, obs_factory, planner_config, mpc_config, bad):
+    core = PlannerCore(planner_config, Recording([bad, bad]), mpc_config)
+    d = core.on_observation(obs_factory(left_turn_map))
+    assert d.source == "fallback"
+    assert sum(core.counters.errors.values()) == 2
+
+
+def test_timeout_discards_late_reply(left_turn_map, obs_factory, planner_config, mpc_config):
+    cfg = cfg_with(planner_config, deadline_s=0.05, max_retries=0)
+    core = PlannerCore(cfg, Recording(sleep_s=0.3), mpc_config)
+    t0 = time.perf_counter()
+    d = core.on_observation(obs_factory(left_turn_map))
+    assert time.perf_counter() - t0 < 0.25  # did not wait for the hung call
+    assert d.source == "fallback" and core.counters.errors["timeout"] == 1
+
+
+def test_latency_measured_or_fixed(left_turn_map, obs_factory, planner_config, mpc_config):
+    measured = PlannerCore(planner_config, Recording(sleep_s=0.05), mpc_config)
+    d = measured.on_observation(obs_factory(left_turn_map))
+    assert 0.05 <= d.latency_s < 2.0
+    fixed = PlannerCore(cfg_with(planner_config, fixed_latency_s=1.7), RulesBackend(), mpc_config)
+    d2 = fixed.on_observation(obs_factory(left_turn_map))
+    assert d2.latency_s == 1.7 and d2.tokens_in > 100 and d2.tokens_out > 10
+
+
+def test_chained_stages(left_turn_map, obs_factory, oncoming_factory, planner_config,
+                        mpc_config):
+    backend = Recording()
+    chained = PlannerCore(cfg_with(planner_config, stages="chained"), backend, mpc_config)
+    single = PlannerCore(planner_config, RulesBackend(), mpc_config)
+    obs = obs_factory(left_turn_map, agents=[oncoming_factory("car1", y_m=30.0, v_mps=10.0)])
+    a, b = chained.on_observation(obs), single.on_observation(obs)
+    assert [r.stage for r in backend.requests] == [
+        "scenario_encoding", "action_guidance", "weight_adjustment"]
+    assert "scenario_encoding" in backend.requests[1].prior_stages
+    keys = ("attention", "accel_interval", "steer_interval", "weights", "ego_trajectory")
+    assert all(getattr(a, k) == getattr(b, k) for k in keys)
+
+
+def test_instruction_goes_into_prompt_only(left_turn_map, obs_factory, planner_config,
+                                           mpc_config):
+    backend = Recording()
+    core = PlannerCore(planner_config, backend, mpc_config)
+    core.on_instruction("the right lane is closed ahead\x00\x1b[2J")
+    core.on_observation(obs_factory(left_turn_map))
+    prompt = backend.requests[0].prompt
+    assert '"the right lane is closed ahead' in prompt
+    assert "\x00" not in prompt and "\x1b" not in prompt
+
+
+def test_time_going_backwards_restarts_schedule(left_turn_map, obs_factory, planner_config,
+                                                mpc_config):
+    core = PlannerCore(planner_config, RulesBackend(), mpc_config)
+    assert core.on_observation(obs_factory(left_turn_map, stamp_s=5.0)) is not None
+    assert core.on_observation(obs_factory(left_turn_map, stamp_s=5.1)) is None
+    assert core.on_observation(obs_factory(left_turn_map, stamp_s=0.0)) is not None

@@ -1,0 +1,80 @@
+"""Prompt generator, token estimate, instruction sanitising, config loading, assembler."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from lmpc_msgs_py.messages import AgentArray, SignalStates
+
+from lmpc_llm_planner.assembler import ObservationAssembler
+from lmpc_llm_planner.config import PlannerConfigError, load_planner_config
+from lmpc_llm_planner.prompt import build_prompt, estimate_tokens, sanitize_instruction
+from lmpc_llm_planner.scene import build_scene
+
+
+@pytest.fixture
+def scene(left_turn_map, obs_factory, oncoming_factory):
+    obs = obs_factory(left_turn_map, agents=[oncoming_factory("car1", y_m=30.0, v_mps=10.0)])
+    return build_scene(obs, lookahead_m=60.0, max_agents=20)
+
+
+def test_prompt_content(scene, mpc_config):
+    p = build_prompt(scene, mpc_config=mpc_config, instruction="drive conservatively")
+    text = p.text
+    assert "car1" in text and "oncoming" in text and "lane N_in_0" in text
+    assert "turn left at the junction (your route)" in text
+    assert "unsignalized" in text and "yields to oncoming traffic" in text
+    assert '"drive conservatively"' in text
+    for i in range(len(mpc_config.accel_intervals_mps2)):
+        assert f"  [{i}] " in text
+    assert "Previous decision: none." in text
+    assert p.tokens_estimate == math.ceil(len(text) / 4.0)
+
+
+def test_emergency_prompt_is_short(scene, mpc_config):
+    normal = build_prompt(scene, mpc_config=mpc_config)
+    emergency = build_prompt(scene, mpc_config=mpc_config, mode="emergency")
+    assert emergency.tokens_estimate < normal.tokens_estimate < 1500 * 2
+    assert emergency.tokens_estimate < 1500
+    assert "scenario_encoding" not in emergency.text.split("JSON schema")[-1]
+
+
+def test_retry_prompt_carries_error(scene, mpc_config):
+    p = build_prompt(scene, mpc_config=mpc_config, retry_error="fenced: no code fences")
+    assert p.text.rstrip().endswith("Answer again.") and "fenced" in p.text
+
+
+def test_estimate_and_sanitize():
+    assert estimate_tokens("") == 0 and estimate_tokens("abcde") == 2
+    assert sanitize_instruction('a\x00b "c"\n\n d' + "x" * 5000).startswith("a b 'c' d")
+    assert len(sanitize_instruction("y" * 5000)) == 2000
+
+
+def test_config_default_and_refusal(tmp_path):
+    cfg = load_planner_config()
+    assert (cfg.period_s, cfg.ttl_s, cfg.deadline_s, cfg.max_retries) == (2.5, 5.0, 8.0, 1)
+    bad = tmp_path / "p.yaml"
+    bad.write_text("period_s: -1\n")
+    with pytest.raises(PlannerConfigError, match="period_s"):
+        load_planner_config(bad)
+    bad.write_text("perod_s: 2\n")
+    with pytest.raises(PlannerConfigError, match="perod_s"):
+        load_planner_config(bad)
+    with pytest.raises(PlannerConfigError, match="backend"):
+        load_planner_config(None, overrides={"backend": "gpt-9"})
+
+
+def test_assembler_matches_stamps(left_turn_map, obs_factory):
+    asm = ObservationAssembler()
+    obs = obs_factory(left_turn_map, stamp_s=1.0, seq=10)
+    assert asm.complete(obs.ego) is None and asm.newest(obs.ego) is None  # no map yet
+    asm.on_map(left_turn_map)
+    asm.on_agents(AgentArray(stamp_s=0.9, seq=9))
+    asm.on_signals(SignalStates(stamp_s=1.0, seq=10))
+    assert asm.complete(obs.ego) is None
+    best = asm.newest(obs.ego)
+    assert best.agents.stamp_s == 0.9 and asm.incomplete_used == 1
+    asm.on_agents(AgentArray(stamp_s=1.0, seq=10))
+    full = asm.complete(obs.ego)
+    assert full.agents.stamp_s == 1.0 and full.signals.stamp_s == 1.0

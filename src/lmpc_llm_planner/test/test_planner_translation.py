@@ -1,0 +1,104 @@
+"""Translation of a validated wire decision into lmpc_msgs_py.Decision, and the safety floor."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from lmpc_msgs_py.codec import decode, encode
+from lmpc_msgs_py.messages import Decision
+
+from lmpc_llm_planner.scene import build_scene
+from lmpc_llm_planner.schema import LlmDecision
+from lmpc_llm_planner.validation import DecisionMeta, apply_safety_floor, translate
+
+META = DecisionMeta(decision_id="0-1", seq=1, source="rules", mode="normal", latency_s=0.3,
+                    tokens_in=100, tokens_out=20, ttl_s=5.0)
+
+
+def flat(points) -> list[float]:
+    return [float(v) for p in points for v in p]
+
+
+def wire(*, ego: int, attention: list[str], trajectories: dict[str, int], accel: int,
+         steer: int) -> LlmDecision:
+    return LlmDecision.model_validate({
+        "reasoning": "test",
+        "scenario_encoding": {"ego_trajectory": ego, "attention": attention,
+                              "agent_trajectories": trajectories},
+        "action_guidance": {"accel_interval": accel, "steer_interval": steer},
+        "weight_adjustment": {"tracking": "low", "action": "high", "smoothness": "normal",
+                              "safety": "high"},
+    })
+
+
+@pytest.fixture
+def scene(left_turn_map, obs_factory, oncoming_factory):
+    agents = [oncoming_factory("car1", y_m=30.0, v_mps=10.0),
+              oncoming_factory("car2", y_m=60.0, v_mps=10.0)]
+    return build_scene(obs_factory(left_turn_map, agents=agents), lookahead_m=60.0,
+                       max_agents=20)
+
+
+@pytest.mark.parametrize("accel, steer", [(0, 0), (2, 2), (5, 4), (3, 1)])
+def test_bias_is_interval_midpoints(scene, mpc_config, accel, steer):
+    d = translate(wire(ego=0, attention=[], trajectories={}, accel=accel, steer=steer),
+                  scene=scene, mpc_config=mpc_config, meta=META)
+    a_lo, a_hi = mpc_config.accel_intervals_mps2[accel]
+    s_lo, s_hi = mpc_config.steer_intervals_rad[steer]
+    assert d.accel_bias_mps2 == pytest.approx(0.5 * (a_lo + a_hi))
+    assert d.steer_bias_rad == pytest.approx(0.5 * (s_lo + s_hi))
+    assert (d.accel_interval, d.steer_interval) == (accel, steer)
+
+
+@pytest.mark.parametrize("ego_idx", [0, 1, 2])
+def test_control_points_are_the_chosen_candidates(scene, mpc_config, ego_idx):
+    d = translate(wire(ego=ego_idx, attention=["car1"], trajectories={"car1": 1}, accel=3,
+                       steer=2), scene=scene, mpc_config=mpc_config, meta=META)
+    ego_c = scene.ego_candidates[ego_idx]
+    assert d.ego_trajectory.candidate_id == ego_idx
+    assert flat(d.ego_trajectory.control_points) == pytest.approx(flat(ego_c.control_points))
+    assert d.ego_trajectory.label == ego_c.label
+    car1 = scene.agent("car1").candidates[1]
+    (pred,) = d.agent_predictions
+    assert pred.agent_id == "car1" and pred.trajectory.candidate_id == 1
+    assert flat(pred.trajectory.control_points) == pytest.approx(flat(car1.control_points))
+
+
+def test_attended_without_choice_gets_closest_heading(scene, mpc_config):
+    d = translate(wire(ego=1, attention=["car2", "car2", "car1"], trajectories={}, accel=3,
+                       steer=2), scene=scene, mpc_config=mpc_config, meta=META)
+    assert d.attention == ("car2", "car1")  # repeats dropped, order kept
+    for pred in d.agent_predictions:
+        assert pred.trajectory.candidate_id == scene.agent(pred.agent_id).closest_heading_id
+
+
+def test_decision_fields_and_wire_round_trip(scene, mpc_config):
+    d = translate(wire(ego=1, attention=["car1"], trajectories={}, accel=1, steer=2),
+                  scene=scene, mpc_config=mpc_config, meta=META)
+    assert (d.source, d.latency_s, d.tokens_in, d.tokens_out, d.ttl_s) == \
+        ("rules", 0.3, 100, 20, 5.0)
+    assert d.weights.safety == "high" and d.weights.tracking == "low"
+    assert d.stamp_s == scene.obs.stamp_s
+    assert decode(encode(d), Decision) == d
+
+
+def test_safety_floor_adds_close_agent(left_turn_map, obs_factory, mpc_config):
+    from lmpc_mpc import synthetic as syn
+
+    near = syn.agent("near", x_m=1.6, y_m=-34.0, yaw_rad=math.pi / 2, v_mps=8.0,
+                     lane_id="S_in_0")  # 6 m ahead in the ego's lane
+    far = syn.agent("far", x_m=-1.6, y_m=80.0, yaw_rad=-math.pi / 2, v_mps=0.0,
+                    lane_id="N_in_0")
+    scene = build_scene(obs_factory(left_turn_map, agents=[near, far]), lookahead_m=60.0,
+                        max_agents=20)
+    d = translate(wire(ego=1, attention=[], trajectories={}, accel=3, steer=2),
+                  scene=scene, mpc_config=mpc_config, meta=META)
+    res = apply_safety_floor(d, scene=scene, ttc_s=3.0, dist_m=10.0, lookahead_m=60.0)
+    assert res.added == ("near",)
+    assert res.decision.attention == ("near",)
+    assert [p.agent_id for p in res.decision.agent_predictions] == ["near"]
+    # Nothing to add: the decision is returned unchanged.
+    again = apply_safety_floor(res.decision, scene=scene, ttc_s=3.0, dist_m=10.0,
+                               lookahead_m=60.0)
+    assert again.added == () and again.decision == res.decision

@@ -1,0 +1,289 @@
+"""The MPC controller of the in-process contract (docs/ARCHITECTURE.md), no ROS.
+
+``on_decision`` stores decisions; ``compute`` turns one observation into one
+``Control``. The decision-timing rule lives here, in one place, for the node and
+the benchmark alike: a decision stamped ``t0`` is in force from the first
+observation with ``t >= t0 + max(latency_s, dt)`` until ``t0 + ttl_s``; the
+newest applicable one wins. Without one the controller runs the paper's MPC
+baseline (normal weights, every agent in range attended, route reference,
+closest-heading predictions, zero bias).
+
+Fallbacks (RELIABILITY.md): a failed or over-budget solve uses the shifted
+previous plan for ``shifted_plan_steps`` steps, then brakes at
+``vehicle.safe_brake_mps2`` with zero steer; stale ego / agents brake at once.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from lmpc_msgs_py.messages import Agent, Control, Decision, PosePoint
+from lmpc_msgs_py.observation import Observation
+from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
+from lmpc_mpc.config import MpcConfig
+from lmpc_mpc.prediction import forecast
+from lmpc_mpc.reference import (
+    ReferencePathError,
+    _Polyline,
+    bezier_points,
+    lane_at,
+    route_candidate,
+    timed_reference,
+)
+from lmpc_mpc.solver import MpcProblem, MpcSolver, Obstacle
+
+_STOP_STATES = ("r", "y", "u")
+_TIME_EPS_S = 1e-6
+_STOP_MARGIN_M = 1.0
+"""The box front stops this far before a red light's stop line."""
+_COMFORT_DECEL_MPS2 = 3.0
+"""A yellow light is run through when stopping would need more than this."""
+_DECISION_MEMORY = 8
+
+
+@dataclass(frozen=True)
+class ControllerStats:
+    """Counters of the controller (the node puts them on its diagnostics)."""
+
+    steps: int
+    solver_failures: int
+    fallbacks: int
+    shifted: int
+    brakes: int
+    stale_inputs: int
+    mode: str
+
+
+class MpcController:
+    """LanguageMPC's low-level controller: one ``Control`` per observation."""
+
+    def __init__(self, config: MpcConfig, vehicle: VehicleParams = DEFAULT_VEHICLE, *,
+                 solver: Optional[MpcSolver] = None) -> None:
+        self.config = config
+        self.vehicle = vehicle
+        self.solver = solver if solver is not None else MpcSolver(config, vehicle)
+        self._decisions: list[Decision] = []
+        self._seq = 0
+        self._u_prev: Optional[tuple[float, float]] = None
+        self._u_prev2: Optional[tuple[float, float]] = None
+        self._plan: Optional[np.ndarray] = None
+        self._plan_pred: Optional[np.ndarray] = None
+        self._plan_age = 0
+        self._counts = {"steps": 0, "solver_failures": 0, "fallbacks": 0, "shifted": 0,
+                        "brakes": 0, "stale_inputs": 0}
+        self._mode = "idle"
+        self.reference_path: Optional[np.ndarray] = None
+        """(M, 2) the reference path of the last step (for the visual mirror)."""
+        self.reference_states: Optional[np.ndarray] = None
+        """(N+1, 4) the time-parameterised reference of the last step."""
+        self.predicted: Optional[np.ndarray] = None
+        """(N+1, 4) the predicted ego states of the last step (x, y, yaw, v)."""
+
+    # -- decisions -----------------------------------------------------------------------
+    def on_decision(self, decision: Decision) -> None:
+        """Store a decision; it takes effect per the timing rule (see module doc)."""
+        if any(d.decision_id == decision.decision_id for d in self._decisions):
+            return
+        self._decisions.append(decision)
+        self._decisions.sort(key=lambda d: (d.stamp_s, d.seq))
+        del self._decisions[:-_DECISION_MEMORY]
+
+    def effective_from_s(self, decision: Decision) -> float:
+        """Sim time from which ``decision`` may steer (the one timing rule)."""
+        return decision.stamp_s + max(decision.latency_s, self.config.dt_s)
+
+    def active_decision(self, t_s: float) -> Optional[Decision]:
+        """The newest decision in force at sim time ``t_s``, or None (baseline)."""
+        for d in reversed(self._decisions):
+            if self.effective_from_s(d) - _TIME_EPS_S <= t_s < d.stamp_s + d.ttl_s:
+                return d
+        return None
+
+    def stats(self) -> ControllerStats:
+        """Counters so far and the mode of the last control."""
+        return ControllerStats(mode=self._mode, **self._counts)
+
+    def reset(self) -> None:
+        """Forget decisions, plan and warm start (new episode)."""
+        self._decisions.clear()
+        self._u_prev = self._u_prev2 = None
+        self._plan = self._plan_pred = None
+        self._plan_age = 0
+        self.solver.reset()
+
+    # -- control -------------------------------------------------------------------------
+    def compute(self, obs: Observation, *, now_s: Optional[float] = None) -> Control:
+        """The control for ``obs`` (stamped like its ego state). Never NaN.
+
+        ``now_s``: the current sim time (``/clock``) if known; an ego state older than
+        ``stale_after_s`` relative to it brakes, as do agents older than the ego state.
+        """
+        self._counts["steps"] += 1
+        ego = obs.ego
+        t = ego.stamp_s
+        stale = None
+        if now_s is not None and now_s - t > self.config.stale_after_s:
+            stale = f"stale ego state ({now_s - t:.2f} s old)"
+        elif t - obs.agents.stamp_s > self.config.stale_after_s:
+            stale = f"stale agents ({t - obs.agents.stamp_s:.2f} s older than ego state)"
+        if stale is not None:
+            self._counts["stale_inputs"] += 1
+            return self._brake(obs, stale, decision_id=None)
+        decision = self.active_decision(t)
+        try:
+            problem, attended, ref_id = self._problem(obs, decision)
+        except (ReferencePathError, ValueError) as exc:
+            self._counts["fallbacks"] += 1
+            return self._brake(obs, f"no reference: {exc}"[:200], decision_id=None)
+        result = self.solver.solve(problem)
+        mode = "decision" if decision is not None else "baseline"
+        dec_id = decision.decision_id if decision is not None else None
+        if result.success:
+            u = result.u0
+            if all(math.isfinite(v) for v in u):
+                self._plan = result.controls
+                self._plan_pred = result.predicted
+                self._plan_age = 0
+                self.predicted = result.predicted
+                return self._emit(obs, u, mode, result.status, result.solve_time_s, dec_id,
+                                  ref_id, attended, result.predicted)
+        self._counts["solver_failures"] += 1
+        self._counts["fallbacks"] += 1
+        self._plan_age += 1
+        if self._plan is not None and self._plan_age <= min(self.config.shifted_plan_steps,
+                                                             len(self._plan) - 1):
+            self._counts["shifted"] += 1
+            u_s = self._plan[self._plan_age]
+            pred = self._plan_pred[self._plan_age:] if self._plan_pred is not None else None
+            self.predicted = pred
+            return self._emit(obs, (float(u_s[0]), float(u_s[1])), "shifted",
+                              f"shifted plan ({result.status})"[:200], result.solve_time_s,
+                              dec_id, ref_id, attended, pred)
+        return self._brake(obs, f"brake ({result.status})"[:200], decision_id=dec_id,
+                           solve_time_s=result.solve_time_s)
+
+    # -- building the problem ------------------------------------------------------------
+    def _problem(self, obs: Observation, decision: Optional[Decision]
+                 ) -> tuple[MpcProblem, tuple[str, ...], Optional[int]]:
+        cfg, veh = self.config, self.vehicle
+        ego = obs.ego
+        n = cfg.horizon
+        ego_xy = np.array([ego.x_m, ego.y_m])
+        ref_id: Optional[int]
+        if decision is not None:
+            pts = bezier_points(decision.ego_trajectory.control_points, 200)
+            # the curve starts where the ego was when the planner looked: go on from
+            # the closest point ahead of the ego now
+            i = int(np.argmin(np.hypot(*(pts - ego_xy).T)))
+            path = np.vstack([ego_xy, pts[i + 1:]]) if i + 1 < len(pts) else \
+                np.vstack([ego_xy, ego_xy + [math.cos(ego.yaw_rad), math.sin(ego.yaw_rad)]])
+            ref_id = decision.ego_trajectory.candidate_id
+            weights = cfg.weights_for(decision.weights)
+            bias = (float(np.clip(decision.accel_bias_mps2, -veh.max_decel_mps2,
+                                  veh.max_accel_mps2)),
+                    float(np.clip(decision.steer_bias_rad, -veh.max_steer_rad,
+                                  veh.max_steer_rad)))
+        else:
+            cand = route_candidate(obs.map, ego, lookahead_m=cfg.lookahead_m)
+            path = cand.sample(200)
+            ref_id = None
+            weights = cfg.weights_for(None)
+            bias = (0.0, 0.0)
+        v_limit = veh.max_speed_mps
+        lane = lane_at(obs.map, x_m=ego.x_m, y_m=ego.y_m, yaw_rad=ego.yaw_rad,
+                       lane_id=ego.lane_id)
+        if lane is not None:
+            v_limit = min(v_limit, lane.speed_limit_mps)
+        stop_at = self._stop_distance(obs)
+        ref = timed_reference(path, v0_mps=ego.v_mps, v_max_mps=v_limit,
+                              a_max_mps2=cfg.reference_accel_mps2,
+                              a_lat_max_mps2=cfg.reference_lat_accel_mps2, horizon=n,
+                              dt_s=cfg.dt_s, stop_at_m=stop_at)
+        self.reference_path = ref.path
+        self.reference_states = ref.states
+        obstacles: list[Obstacle] = []
+        if stop_at is not None:
+            line = _Polyline.of(path)
+            xy = line.at(stop_at + 0.5 * veh.length_m + _STOP_MARGIN_M)[0]
+            obstacles.append(Obstacle("stop_line", np.tile(xy, (n + 1, 1)), 0.1, 3.0,
+                                      virtual=True))
+        agents = self._attended(obs, decision)
+        slots = max(0, cfg.max_agents - len(obstacles))
+        preds = {p.agent_id: p.trajectory.control_points
+                 for p in (decision.agent_predictions if decision is not None else ())}
+        for ag in agents[:slots]:
+            fc = forecast(ag, preds.get(ag.id), map_=obs.map, horizon=n, dt_s=cfg.dt_s,
+                          lookahead_m=cfg.lookahead_m)
+            obstacles.append(Obstacle(ag.id, fc.xy_m, ag.length_m, ag.width_m))
+        u_prev = self._u_prev if self._u_prev is not None else (ego.a_mps2, ego.steer_rad)
+        u_prev2 = self._u_prev2 if self._u_prev2 is not None else u_prev
+        problem = MpcProblem(x0=(ego.x_m, ego.y_m, ego.yaw_rad, ego.v_mps), u_prev=u_prev,
+                             u_prev2=u_prev2, reference=ref.states,
+                             reference_curvature_1pm=ref.curvature_1pm, weights=weights,
+                             bias=bias, obstacles=tuple(obstacles))
+        return problem, tuple(a.id for a in agents[:slots]), ref_id
+
+    def _attended(self, obs: Observation, decision: Optional[Decision]) -> list[Agent]:
+        ego = obs.ego
+        seen = {a.id: a for a in obs.agents.agents}
+        if decision is not None:
+            # ids the decision names but no longer observed are ignored
+            chosen = [seen[i] for i in decision.attention if i in seen]
+        else:
+            chosen = [a for a in seen.values()
+                      if math.hypot(a.x_m - ego.x_m, a.y_m - ego.y_m)
+                      <= self.config.sensing_range_m]
+        chosen.sort(key=lambda a: math.hypot(a.x_m - ego.x_m, a.y_m - ego.y_m))
+        return chosen
+
+    def _stop_distance(self, obs: Observation) -> Optional[float]:
+        """Arc length along the reference where the box centre must stop (red light)."""
+        links = sorted(obs.signals.links, key=lambda lk: lk.distance_m)
+        if not links:
+            return None
+        nxt = links[0]
+        if nxt.state not in _STOP_STATES:
+            return None
+        v = obs.ego.v_mps
+        if nxt.state == "y" and nxt.distance_m < v * v / (2.0 * _COMFORT_DECEL_MPS2):
+            return None  # too close to stop comfortably on yellow: go on
+        return max(0.0, nxt.distance_m - 0.5 * self.vehicle.length_m - _STOP_MARGIN_M)
+
+    # -- output --------------------------------------------------------------------------
+    def _brake(self, obs: Observation, status: str, *, decision_id: Optional[str],
+               solve_time_s: float = 0.0) -> Control:
+        self._counts["brakes"] += 1
+        self._plan = None
+        self._plan_pred = None
+        self.predicted = None
+        return self._emit(obs, (-self.vehicle.safe_brake_mps2, 0.0), "brake", status,
+                          solve_time_s, decision_id, None, (), None)
+
+    def _emit(self, obs: Observation, u: tuple[float, float], mode: str, status: str,
+              solve_time_s: float, decision_id: Optional[str], ref_id: Optional[int],
+              attended: tuple[str, ...], predicted: Optional[np.ndarray]) -> Control:
+        veh = self.vehicle
+        a, d = u
+        if not (math.isfinite(a) and math.isfinite(d)):
+            a, d, mode, status = -veh.safe_brake_mps2, 0.0, "brake", "non-finite control"
+        a = float(np.clip(a, -veh.max_decel_mps2, veh.max_accel_mps2))
+        d = float(np.clip(d, -veh.max_steer_rad, veh.max_steer_rad))
+        self._u_prev2 = self._u_prev if self._u_prev is not None else (a, d)
+        self._u_prev = (a, d)
+        self._mode = mode
+        pts: tuple[PosePoint, ...] = ()
+        if predicted is not None and np.all(np.isfinite(predicted)):
+            pts = tuple(PosePoint(x_m=float(r[0]), y_m=float(r[1]),
+                                  yaw_rad=float(math.remainder(r[2], 2 * math.pi)),
+                                  v_mps=float(np.clip(r[3], -5.0, 70.0)))
+                        for r in predicted[:200])
+        solve_ms = float(min(max(solve_time_s * 1e3, 0.0), 1e6))
+        ctl = Control(stamp_s=obs.ego.stamp_s, seq=self._seq, accel_mps2=a, steer_rad=d,
+                      mode=mode, solver_status=status[:200], solve_time_ms=solve_ms,
+                      decision_id=decision_id, reference_id=ref_id, attended=attended,
+                      predicted=pts)  # type: ignore[arg-type]
+        self._seq += 1
+        return ctl
