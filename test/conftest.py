@@ -48,6 +48,7 @@ class GraphRun:
 
 def run_graph(tmp_path: Path, domain_id: int, *extra: str, timeout_s: float = 300) -> GraphRun:
     """Run scripts/run_graph.py to the end of the episode; return its summary and record."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
     run_dir = tmp_path / "run"
     summary_path = tmp_path / "summary.json"
     cmd = [sys.executable, str(RUN_GRAPH), "--run-dir", str(run_dir), "--summary-json",

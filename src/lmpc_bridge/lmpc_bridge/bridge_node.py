@@ -119,7 +119,7 @@ class BridgeNode(LmpcNode):
         self.get_logger().info(
             f"building scene {self.cfg.scenario} seed {self.cfg.seed} ({self.cfg.clock_mode} clock)"
         )
-        self.sim.reset(self.cfg.scenario, self.cfg.seed)
+        self.sim.reset(self.cfg.scenario, self.cfg.seed, max_time_s=self.cfg.max_time_s)
 
         self.pub_clock = self.create_publisher(Clock, topics.CLOCK, lmpc_qos.CLOCK)
         self.pub_map = self.json_publisher(MapSnapshot, topics.MAP, lmpc_qos.LATCHED)

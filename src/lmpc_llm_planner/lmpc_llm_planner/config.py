@@ -46,6 +46,11 @@ class RulesConfig(_Frozen):
     """Range in which the nearest agent ahead in the ego's lane counts as its leader."""
     oncoming_heading_tol_rad: float = Field(default=0.8, gt=0.0, le=1.6)
     """Heading difference from exactly opposite within which an agent counts as oncoming."""
+    brake_margin_factor: float = Field(default=1.5, ge=1.0, le=5.0)
+    """Ask for this much more than the kinematic need v^2 / 2d when choosing a braking
+    interval: the MPC weighs the bias against tracking and reaches it only partly."""
+    approach_turn_speed_mps: float = Field(default=7.0, gt=0.0, le=30.0)
+    """Approaching a turn, slow down to reach the stop line at no more than this speed."""
     stop_margin_m: float = Field(default=1.0, ge=0.0, le=10.0)
     """Stop this far before the stop line."""
     moving_speed_mps: float = Field(default=0.5, ge=0.0, le=5.0)

@@ -146,3 +146,15 @@ def test_travel_time():
     assert travel_time_s(8.0, v0_mps=0.0, accel_mps2=1.0, vmax_mps=10.0) == pytest.approx(4.0)
     # accelerate to the cap (5 s, 12.5 m), then cruise
     assert travel_time_s(22.5, v0_mps=0.0, accel_mps2=1.0, vmax_mps=5.0) == pytest.approx(7.0)
+
+
+def test_fast_approach_to_a_turn_slows_down(left_turn_map, straight_map, obs_factory,
+                                            planner_config, mpc_config):
+    acc = mpc_config.accel_intervals_mps2
+    turn, _, _ = ask(obs_factory(left_turn_map, ego_y_m=-45.0, ego_v_mps=12.0),
+                     planner_config, mpc_config)
+    assert mid(acc, turn.action_guidance.accel_interval) < 0.0
+    assert turn.weight_adjustment.action == "high"
+    straight, _, _ = ask(obs_factory(straight_map, ego_y_m=-45.0, ego_v_mps=12.0),
+                         planner_config, mpc_config)
+    assert mid(acc, straight.action_guidance.accel_interval) >= 0.0

@@ -75,6 +75,7 @@ class MpcController:
         self._counts = {"steps": 0, "solver_failures": 0, "fallbacks": 0, "shifted": 0,
                         "brakes": 0, "stale_inputs": 0}
         self._mode = "idle"
+        self._ego_v_mps = 0.0
         self.reference_path: Optional[np.ndarray] = None
         """(M, 2) the reference path of the last step (for the visual mirror)."""
         self.reference_states: Optional[np.ndarray] = None
@@ -173,6 +174,9 @@ class MpcController:
         n = cfg.horizon
         ego_xy = np.array([ego.x_m, ego.y_m])
         ref_id: Optional[int]
+        ref_acc = cfg.reference_accel_mps2
+        ref_dec: Optional[float] = None
+        ref_v_cap = veh.max_speed_mps
         if decision is not None:
             pts = bezier_points(decision.ego_trajectory.control_points, 200)
             # the curve starts where the ego was when the planner looked: go on from
@@ -186,6 +190,15 @@ class MpcController:
                                   veh.max_accel_mps2)),
                     float(np.clip(decision.steer_bias_rad, -veh.max_steer_rad,
                                   veh.max_steer_rad)))
+            # the action guidance shapes the reference's speed profile too: a braking
+            # bias (below the neutral interval) brakes the reference to a stop at that
+            # rate, a speeding-up bias raises its acceleration. Otherwise the tracking
+            # term would fight the bias (our reading; the paper leaves it open).
+            lo, hi = cfg.accel_intervals_mps2[cfg.neutral_accel_index]
+            if bias[0] < lo:
+                ref_v_cap, ref_dec = 0.0, max(-bias[0], 0.5)
+            elif bias[0] > hi:
+                ref_acc = max(bias[0], ref_acc)
         else:
             cand = route_candidate(obs.map, ego, lookahead_m=cfg.lookahead_m)
             path = cand.sample(200)
@@ -198,26 +211,28 @@ class MpcController:
         if lane is not None:
             v_limit = min(v_limit, lane.speed_limit_mps)
         stop_at = self._stop_distance(obs)
-        ref = timed_reference(path, v0_mps=ego.v_mps, v_max_mps=v_limit,
-                              a_max_mps2=cfg.reference_accel_mps2,
-                              a_lat_max_mps2=cfg.reference_lat_accel_mps2, horizon=n,
-                              dt_s=cfg.dt_s, stop_at_m=stop_at)
-        self.reference_path = ref.path
-        self.reference_states = ref.states
-        obstacles: list[Obstacle] = []
-        if stop_at is not None:
-            line = _Polyline.of(path)
-            xy = line.at(stop_at + 0.5 * veh.length_m + _STOP_MARGIN_M)[0]
-            obstacles.append(Obstacle("stop_line", np.tile(xy, (n + 1, 1)), 0.1, 3.0,
-                                      virtual=True))
         agents = self._attended(obs, decision)
-        slots = max(0, cfg.max_agents - len(obstacles))
+        obstacles: list[Obstacle] = []
+        slots = max(0, cfg.max_agents - (1 if stop_at is not None else 0))
         preds = {p.agent_id: p.trajectory.control_points
                  for p in (decision.agent_predictions if decision is not None else ())}
         for ag in agents[:slots]:
             fc = forecast(ag, preds.get(ag.id), map_=obs.map, horizon=n, dt_s=cfg.dt_s,
                           lookahead_m=cfg.lookahead_m)
             obstacles.append(Obstacle(ag.id, fc.xy_m, ag.length_m, ag.width_m))
+        line = _Polyline.of(path)
+        self._ego_v_mps = ego.v_mps
+        s_limit = self._lead_limits(line, obstacles, [a.v_mps for a in agents[:slots]])
+        ref = timed_reference(path, v0_mps=ego.v_mps, v_max_mps=min(v_limit, ref_v_cap),
+                              a_max_mps2=ref_acc, a_dec_mps2=ref_dec,
+                              a_lat_max_mps2=cfg.reference_lat_accel_mps2, horizon=n,
+                              dt_s=cfg.dt_s, stop_at_m=stop_at, s_limit_m=s_limit)
+        self.reference_path = ref.path
+        self.reference_states = ref.states
+        if stop_at is not None:
+            xy = line.at(stop_at + 0.5 * veh.length_m + _STOP_MARGIN_M)[0]
+            obstacles.append(Obstacle("stop_line", np.tile(xy, (n + 1, 1)), 0.1, 3.0,
+                                      virtual=True))
         u_prev = self._u_prev if self._u_prev is not None else (ego.a_mps2, ego.steer_rad)
         u_prev2 = self._u_prev2 if self._u_prev2 is not None else u_prev
         problem = MpcProblem(x0=(ego.x_m, ego.y_m, ego.yaw_rad, ego.v_mps), u_prev=u_prev,
@@ -225,6 +240,43 @@ class MpcController:
                              reference_curvature_1pm=ref.curvature_1pm, weights=weights,
                              bias=bias, obstacles=tuple(obstacles))
         return problem, tuple(a.id for a in agents[:slots]), ref_id
+
+    def _lead_limits(self, line: _Polyline, obstacles: list[Obstacle],
+                     speeds_mps: list[float]) -> Optional[np.ndarray]:
+        """Per step, the farthest the reference may go: behind every attended agent
+        predicted on the path (gap + half-lengths + headway at the agent's speed).
+
+        This keeps the time-parameterised reference from running through a car
+        ahead, so tracking and the safety term do not fight (our choice; the
+        paper leaves the reference's speed profile open)."""
+        if not obstacles:
+            return None
+        cfg, veh = self.config, self.vehicle
+        n = cfg.horizon
+        limit = np.full(n + 1, np.inf)
+        hold_steps = int(math.ceil(cfg.safety_headway_s / cfg.dt_s))
+        for ob, v in zip(obstacles, speeds_mps):
+            lat_clear = 0.5 * (veh.width_m + ob.width_m) + cfg.safety_lateral_gap_m
+            gap = cfg.safety_gap_m + 0.5 * (veh.length_m + ob.length_m)
+            on = np.zeros(n + 1, dtype=bool)
+            s_k = np.zeros(n + 1)
+            for k in range(n + 1):
+                s_k[k], dist, _ = line.project(float(ob.xy_m[k, 0]), float(ob.xy_m[k, 1]))
+                on[k] = dist < lat_clear and 0.0 < s_k[k] < line.length_m - 1e-6
+            if not np.any(on):
+                continue
+            if on[0] and np.all(np.diff(s_k[on]) >= -1e-6):
+                # a vehicle ahead going our way: follow it at gap + headway
+                limit[on] = np.minimum(limit[on], s_k[on] - gap - cfg.safety_headway_s * v)
+                continue
+            # crossing or oncoming: stay out of the conflict zone until it has left
+            # (plus one headway), unless we are too close to stop comfortably
+            s_enter = float(np.min(s_k[on])) - gap
+            if s_enter < self._ego_v_mps ** 2 / (2.0 * _COMFORT_DECEL_MPS2):
+                continue
+            k_last = min(n, int(np.max(np.nonzero(on)[0])) + hold_steps)
+            limit[: k_last + 1] = np.minimum(limit[: k_last + 1], s_enter)
+        return None if not np.any(np.isfinite(limit)) else limit
 
     def _attended(self, obs: Observation, decision: Optional[Decision]) -> list[Agent]:
         ego = obs.ego

@@ -409,7 +409,6 @@ class MpcSolver:
     def solve(self, problem: MpcProblem) -> MpcResult:
         """Solve one step. Never returns an unconverged or non-finite solution as success."""
         n = self.n
-        t0 = time.perf_counter()
         n_slots = self.slots_for(len(problem.obstacles))
         comp = self.compiled(n_slots)
         t0 = time.perf_counter()  # compiling is not part of the solve time

@@ -82,6 +82,8 @@ class _Plan:
     """id -> why (insertion order = the order of the reasoning)."""
     accel_index: int = 0
     steer_index: int = 0
+    speed_set: bool = False
+    """A rule chose the accel interval (the default "go" must not override it)."""
     weights: dict[str, str] = field(
         default_factory=lambda: {
             "tracking": "normal", "action": "normal", "smoothness": "normal", "safety": "normal",
@@ -138,7 +140,7 @@ class RulesBackend:
         yielding = self._left_turn_rule(scene, plan, accel, steer, safe_gap_s)
         if not yielding:
             self._following_rule(scene, plan, accel, safe_gap_s)
-        if not plan.notes or plan.accel_index == _neutral(accel):
+        if not plan.speed_set:
             self._go(scene, plan, accel)
         attention = list(plan.attention)
         encoding = {
@@ -213,6 +215,7 @@ class RulesBackend:
             plan.notes.append(
                 f"I turn {turn} at the junction ahead; no oncoming traffic conflicts, so I go."
             )
+            self._approach_turn(man, ego.v_mps, plan, accel)
             return False
         unsafe = [c for c in conflicts if c.gap_s < safe_gap_s]
         for c in conflicts:
@@ -222,6 +225,7 @@ class RulesBackend:
                 f"I turn {turn}; the oncoming gap is {min(c.gap_s for c in conflicts):.1f} s "
                 f"(safe from {safe_gap_s:.1f} s), so I turn now."
             )
+            self._approach_turn(man, ego.v_mps, plan, accel)
             return False
         worst = min(unsafe, key=lambda c: (c.gap_s, c.view.id))
         vmax_brake = max(-lo for lo, _ in accel)
@@ -234,7 +238,10 @@ class RulesBackend:
         for d_stop, where in targets:
             need = _required_decel(ego.v_mps, d_stop, cfg.moving_speed_mps)
             if need is not None and need <= vmax_brake:
-                plan.accel_index = _brake_index(accel, need, ego.v_mps < cfg.moving_speed_mps)
+                plan.accel_index = _brake_index(
+                    accel, need * cfg.brake_margin_factor, ego.v_mps < cfg.moving_speed_mps
+                )
+                plan.speed_set = True
                 plan.weights.update(tracking="low", action="high", safety="high")
                 plan.notes.append(
                     f"I turn {turn} and must yield to oncoming {worst.view.id}: it reaches the "
@@ -250,6 +257,31 @@ class RulesBackend:
             f"{turn} turn and keep a safe distance."
         )
         return False
+
+    def _approach_turn(
+        self, man: Maneuver, v_mps: float, plan: _Plan, accel: tuple[tuple[float, float], ...]
+    ) -> None:
+        """Slow to ``approach_turn_speed_mps`` by the stop line (a driver about to turn does;
+        it also leaves room to react to traffic not yet in sensing range)."""
+        cfg = self.config
+        d = man.dist_to_stop_line_m - 0.5 * DEFAULT_VEHICLE.length_m
+        v_turn = cfg.approach_turn_speed_mps
+        if man.inside_junction or d <= 0.0:
+            return
+        if v_mps > v_turn + 0.5:
+            need = (v_mps**2 - v_turn**2) / (2.0 * d)
+            if need > 0.2:
+                plan.accel_index = _brake_index(accel, need * cfg.brake_margin_factor, False)
+                plan.speed_set = True
+                # At "normal" the MPC barely follows a bias (tracking the speed limit wins).
+                plan.weights["action"] = "high"
+                plan.notes.append(f"I slow down to {v_turn:.0f} m/s for the turn.")
+                return
+        if v_mps >= 0.8 * v_turn:
+            plan.accel_index = _neutral(accel)
+            plan.speed_set = True
+            plan.weights["action"] = "high"
+            plan.notes.append(f"I keep about {v_turn:.0f} m/s for the turn.")
 
     def _oncoming_conflict(
         self, scene: Scene, view: AgentView, man: Maneuver, yield_dirs: tuple[str, ...]
@@ -303,7 +335,8 @@ class RulesBackend:
         worst = min(threats, key=lambda v: (v.kin.ttc_s, v.id))
         plan.attend(worst, f"closing in, {worst.kin.ttc_s:.1f} s to collision")
         need = worst.kin.closing_speed_mps**2 / (2.0 * max(worst.kin.gap_m - 2.0, 0.5))
-        plan.accel_index = _brake_index(accel, need, False)
+        plan.accel_index = _brake_index(accel, need * self.config.brake_margin_factor, False)
+        plan.speed_set = True
         plan.weights["safety"] = "high"
         plan.notes.append(
             f"{worst.id} is {worst.kin.gap_m:.0f} m {worst.kin.relation} and I close in at "

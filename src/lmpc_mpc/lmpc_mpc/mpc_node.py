@@ -1,0 +1,229 @@
+"""ROS 2 node ``mpc_controller``: a thin wrapper around :class:`MpcController`.
+
+One control per received ego state, once agents and signals with the same stamp
+are in (or after a short wall wait, then the newest ones), and - sync barrier -
+once the decision named by ``ego_state.required_decision_id`` has arrived (up to
+1 s wall, then it goes on and counts it). Watchdog: if ``/clock`` does not move
+for 2 s wall, it says so once and publishes nothing that moves the car.
+"""
+from __future__ import annotations
+
+import signal
+import time
+from typing import Optional
+
+import rclpy
+from nav_msgs.msg import Path
+from geometry_msgs.msg import PoseStamped
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.clock import Clock, ClockType
+
+from lmpc_msgs_py import qos as lmpc_qos
+from lmpc_msgs_py import topics
+from lmpc_msgs_py.base_node import LmpcNode, run_node
+from lmpc_msgs_py.messages import AgentArray, Control, Decision, EgoState, MapSnapshot, \
+    SignalStates
+from lmpc_msgs_py.observation import Observation
+from lmpc_mpc.config import MpcConfigError, load_mpc_config
+from lmpc_mpc.controller import MpcController
+
+PAIR_WAIT_S = 0.2
+"""Wall time to wait for agents / signals of the ego state's stamp before using the newest."""
+BARRIER_WAIT_S = 1.0
+CLOCK_WATCHDOG_S = 2.0
+TICK_S = 0.01
+
+
+class MpcNode(LmpcNode):
+    """Subscribes map, ego_state, agents, signals, decision; publishes control and mirrors."""
+
+    def __init__(self) -> None:
+        super().__init__("mpc_controller")
+        self.declare_parameter("config_file", "", ParameterDescriptor(
+            description="MPC config YAML ('' = the packaged default)"))
+        self.declare_parameter("ego_id", "", ParameterDescriptor(
+            description="ego namespace ('' = single ego, topics under /lmpc)"))
+        ego_id = self.get_parameter("ego_id").get_parameter_value().string_value
+        self.ego_id = ego_id or None
+        path = self.get_parameter("config_file").get_parameter_value().string_value
+        self.config = load_mpc_config(path or None)
+        self.controller = MpcController(self.config)
+        self._map: Optional[MapSnapshot] = None
+        self._agents: dict[float, AgentArray] = {}
+        self._signals: dict[float, SignalStates] = {}
+        self._pending: list[tuple[EgoState, float]] = []  # (ego, wall time received)
+        self._decision_ids: set[str] = set()
+        self._last_clock_s: Optional[float] = None
+        self._last_clock_wall = time.monotonic()
+        self._frozen = False
+        self._seen_ego = False
+        self._waiting_logged = False
+        self._pub = self.json_publisher(Control, topics.CONTROL)
+        self._ref_pub = self.create_publisher(Path, self.topic(topics.REFERENCE_PATH),
+                                              lmpc_qos.MIRROR)
+        self._pred_pub = self.create_publisher(Path, self.topic(topics.PREDICTED_PATH),
+                                               lmpc_qos.MIRROR)
+        self.json_subscription(MapSnapshot, topics.MAP, self._on_map, lmpc_qos.LATCHED,
+                               check_seq=False)
+        self.json_subscription(EgoState, topics.EGO_STATE, self._on_ego)
+        self.json_subscription(AgentArray, topics.AGENTS, self._on_agents)
+        self.json_subscription(SignalStates, topics.SIGNALS, self._on_signals)
+        self.json_subscription(Decision, topics.DECISION, self._on_decision)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(TICK_S, self._tick, clock=steady)
+        self.create_timer(1.0, self._diagnostics, clock=steady)
+        self.get_logger().info(
+            f"mpc_controller up: solver {self.config.solver}, horizon {self.config.horizon}")
+
+    # -- inputs --------------------------------------------------------------------------
+    def _on_map(self, msg: MapSnapshot) -> None:
+        self._map = msg
+
+    def _on_ego(self, msg: EgoState) -> None:
+        # a new ego state is the simulation advancing too (DDS does not order it
+        # with /clock, and step 0 has /clock = 0, the same as "no clock yet")
+        self._last_clock_wall = time.monotonic()
+        if self._frozen:
+            self.get_logger().info("simulation advancing again")
+        self._frozen = False
+        self._seen_ego = True
+        self._pending.append((msg, time.monotonic()))
+        self._tick()
+
+    def _on_agents(self, msg: AgentArray) -> None:
+        self._agents[msg.stamp_s] = msg
+        self._trim(self._agents)
+        self._tick()
+
+    def _on_signals(self, msg: SignalStates) -> None:
+        self._signals[msg.stamp_s] = msg
+        self._trim(self._signals)
+        self._tick()
+
+    def _on_decision(self, msg: Decision) -> None:
+        self._decision_ids.add(msg.decision_id)
+        self.controller.on_decision(msg)
+        self._tick()
+
+    @staticmethod
+    def _trim(store: dict) -> None:
+        for key in sorted(store)[:-20]:
+            del store[key]
+
+    def _clock_s(self) -> float:
+        now = self.get_clock().now().nanoseconds * 1e-9
+        if self._last_clock_s is None or now != self._last_clock_s:
+            self._last_clock_s = now
+            self._last_clock_wall = time.monotonic()
+            if self._frozen:
+                self.get_logger().info("simulation advancing again")
+            self._frozen = False
+        return now
+
+    # -- the step ------------------------------------------------------------------------
+    def _tick(self) -> None:
+        now_s = self._clock_s()
+        if time.monotonic() - self._last_clock_wall > CLOCK_WATCHDOG_S and self._seen_ego:
+            if not self._frozen:
+                self.get_logger().warn(
+                    f"simulation not advancing (/clock still for {CLOCK_WATCHDOG_S:.0f} s "
+                    "wall): publishing no control")
+                self.counters["clock_frozen"] += 1
+            self._frozen = True
+            self._pending.clear()
+            return
+        if self._map is None or not self._pending:
+            if self._pending and not self._waiting_logged:
+                self.get_logger().info("waiting for the map on " + self.topic(topics.MAP))
+                self._waiting_logged = True
+            del self._pending[:-1]  # commands nothing until the map is there
+            return
+        while self._pending:
+            ego, wall = self._pending[0]
+            waited = time.monotonic() - wall
+            agents = self._agents.get(ego.stamp_s)
+            signals = self._signals.get(ego.stamp_s)
+            if (agents is None or signals is None) and waited < PAIR_WAIT_S:
+                return
+            need = ego.required_decision_id
+            if need is not None and need not in self._decision_ids:
+                if waited < BARRIER_WAIT_S:
+                    return
+                self.counters["barrier_timeouts"] += 1
+                self.log_event("barrier", f"decision {need!r} not received within "
+                               f"{BARRIER_WAIT_S:.0f} s; computing anyway")
+            if agents is None:
+                agents = self._newest(self._agents, ego.stamp_s)
+                self.counters["unpaired_agents"] += 1
+            if signals is None:
+                signals = self._newest(self._signals, ego.stamp_s)
+                self.counters["unpaired_signals"] += 1
+            self._pending.pop(0)
+            if agents is None:
+                agents = AgentArray(stamp_s=max(0.0, ego.stamp_s - 1e3), seq=0)
+            if signals is None:
+                signals = SignalStates(stamp_s=ego.stamp_s, seq=0)
+            self._compute(Observation(map=self._map, ego=ego, agents=agents, signals=signals),
+                          now_s)
+
+    @staticmethod
+    def _newest(store: dict, stamp_s: float):  # type: ignore[no-untyped-def]
+        older = [k for k in store if k <= stamp_s]
+        return store[max(older)] if older else None
+
+    def _compute(self, obs: Observation, now_s: float) -> None:
+        ctl = self.controller.compute(obs, now_s=now_s if now_s > 0.0 else None)
+        if ctl.mode == "brake" and "stale" in ctl.solver_status:
+            self.log_event("stale", f"braking: {ctl.solver_status}")
+        if ctl.mode in ("shifted", "brake"):
+            self.counters["fallbacks"] += 1
+        self._pub.publish(ctl)
+        self._publish_paths(obs)
+
+    def _publish_paths(self, obs: Observation) -> None:
+        stamp = self.get_clock().now().to_msg()
+        for pub, pts in ((self._ref_pub, self.controller.reference_path),
+                         (self._pred_pub, self.controller.predicted)):
+            msg = Path()
+            msg.header.frame_id = "map"
+            msg.header.stamp = stamp
+            if pts is not None:
+                for row in pts[:: max(1, len(pts) // 100)]:
+                    ps = PoseStamped()
+                    ps.header = msg.header
+                    ps.pose.position.x = float(row[0])
+                    ps.pose.position.y = float(row[1])
+                    msg.poses.append(ps)
+            pub.publish(msg)
+
+    def _diagnostics(self) -> None:
+        self._clock_s()
+        st = self.controller.stats()
+        level = 0 if st.mode in ("decision", "baseline", "idle") else 1
+        if self._frozen:
+            level = 1
+        self.publish_diagnostics(level, "simulation not advancing" if self._frozen
+                                 else f"mode {st.mode}",
+                                 {"mode": st.mode, "steps": st.steps,
+                                  "solver_failures": st.solver_failures,
+                                  "fallbacks": st.fallbacks, "shifted": st.shifted,
+                                  "brakes": st.brakes, "stale_inputs": st.stale_inputs})
+
+
+def _sigterm(_signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def main(args: Optional[list[str]] = None) -> int:
+    """Console script ``mpc_controller``."""
+    signal.signal(signal.SIGTERM, _sigterm)
+    try:
+        return run_node(MpcNode, args)
+    except MpcConfigError as exc:
+        print(f"mpc_controller: {exc}")
+        rclpy.try_shutdown()
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

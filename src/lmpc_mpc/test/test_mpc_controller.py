@@ -1,0 +1,152 @@
+"""Solver and controller on synthetic observations (closed loop with the same bicycle)."""
+import math
+from typing import Callable, Sequence
+
+import numpy as np
+import pytest
+
+from lmpc_msgs_py.messages import Agent, BezierTrajectory, Decision, WeightLevels
+from lmpc_mpc import synthetic as S
+from lmpc_mpc.config import load_mpc_config
+from lmpc_mpc.controller import MpcController
+from lmpc_mpc.solver import MpcSolver, simulate_bicycle
+
+CFG = load_mpc_config()
+
+
+@pytest.fixture(scope="module")
+def solver() -> MpcSolver:
+    return MpcSolver(CFG)
+
+
+def _run(ctrl: MpcController, m, x0, steps: int,
+         agents: Callable[[float], Sequence[Agent]] = lambda t: ()):
+    x = np.array(x0, dtype=float)
+    log = []
+    for k in range(steps):
+        t = k * CFG.dt_s
+        ego = S.ego_state(x_m=float(x[0]), y_m=float(x[1]),
+                          yaw_rad=float(math.remainder(x[2], 2 * math.pi)),
+                          v_mps=float(x[3]), stamp_s=t, seq=k)
+        ctl = ctrl.compute(S.observation(m, ego, agents(t)))
+        assert math.isfinite(ctl.accel_mps2) and math.isfinite(ctl.steer_rad)
+        x = simulate_bicycle(x, np.array([[ctl.accel_mps2, ctl.steer_rad]]), dt_s=CFG.dt_s)[1]
+        log.append((t, x.copy(), ctl))
+    return log
+
+
+def _ctrl(solver: MpcSolver) -> MpcController:
+    solver.reset()
+    return MpcController(CFG, solver=solver)
+
+
+def test_solution_respects_bounds(solver: MpcSolver) -> None:
+    log = _run(_ctrl(solver), S.four_way_junction(), (1.6, -40.0, math.pi / 2, 6.0), 60)
+    veh = _ctrl(solver).vehicle
+    steers = [c.steer_rad for _, _, c in log]
+    for _, x, c in log:
+        assert -veh.max_decel_mps2 - 1e-6 <= c.accel_mps2 <= veh.max_accel_mps2 + 1e-6
+        assert abs(c.steer_rad) <= veh.max_steer_rad + 1e-6
+        assert 0.0 <= x[3] <= veh.max_speed_mps + 1e-6
+        assert c.mode == "baseline"
+    rate = np.abs(np.diff(steers)) / CFG.dt_s
+    assert rate.max() <= veh.max_steer_rate_radps + 1e-3
+    assert max(abs(s) for s in steers) > 0.1  # it did turn
+
+
+def test_straight_road_reaches_speed_limit_smoothly(solver: MpcSolver) -> None:
+    m = S.straight_road(speed_mps=12.0)
+    log = _run(_ctrl(solver), m, (10.0, -4.8, 0.0, 0.0), 110)
+    v = np.array([x[3] for _, x, _ in log])
+    acc = np.array([c.accel_mps2 for _, _, c in log])
+    assert v[-1] == pytest.approx(12.0, abs=0.4)
+    assert v.max() < 12.5
+    assert np.abs(np.diff(acc)).max() < 1.0  # no bang-bang
+    assert all(abs(x[1] + 4.8) < 0.2 for _, x, _ in log)
+
+
+def test_stopped_car_ahead_ego_stops_behind_with_gap(solver: MpcSolver) -> None:
+    m = S.straight_road()
+    car = S.agent("car1", x_m=80.0, y_m=-4.8, yaw_rad=0.0, lane_id="E0_0")
+    log = _run(_ctrl(solver), m, (10.0, -4.8, 0.0, 10.0), 120, lambda t: [car])
+    x_end = log[-1][1]
+    gap = 80.0 - x_end[0] - 4.5  # box to box
+    assert x_end[3] < 0.3
+    assert 0.8 < gap < 6.0
+    assert all(abs(x[1] + 4.8) < 0.5 for _, x, _ in log)  # braked, did not swerve
+
+
+def test_oncoming_crossing_car_ego_waits(solver: MpcSolver) -> None:
+    m = S.four_way_junction()
+
+    def oncoming(t: float) -> list[Agent]:
+        y = 40.0 - 10.0 * t
+        return [S.agent("on", x_m=-1.6, y_m=y, yaw_rad=-math.pi / 2, v_mps=10.0,
+                        lane_id="N_in_0" if y > 8.0 else ":J_3_0")]
+
+    log = _run(_ctrl(solver), m, (1.6, -25.0, math.pi / 2, 3.0), 80, oncoming)
+    gaps = [math.hypot(x[0] - a.x_m, x[1] - a.y_m)
+            for (t, x, _) in log for a in oncoming(t + CFG.dt_s)]
+    assert min(gaps) > 2.5  # boxes never touch (it passes in its own lane)
+    # until the car has passed the conflict point (its lane at y ~ -0.8), the ego
+    # stays out of the oncoming lane (x > 0)
+    for t, x, _ in log:
+        if -2.0 <= 40.0 - 10.0 * t <= 8.0:
+            assert x[0] > 0.0
+    assert log[-1][1][0] < -5.0  # and then it turns left
+
+
+def _decision(ego_xy, *, stamp_s: float, latency_s: float = 0.0, ttl_s: float = 5.0,
+              accel_idx: int = 0, levels: WeightLevels = WeightLevels(action="high")
+              ) -> Decision:
+    bias = CFG.bias_for(accel_idx, CFG.neutral_steer_index)
+    cps = tuple((ego_xy[0] + d, ego_xy[1]) for d in (0.0, 20.0, 40.0, 60.0))
+    return Decision(stamp_s=stamp_s, seq=1, decision_id=f"d{stamp_s}", source="mock",
+                    latency_s=latency_s, ttl_s=ttl_s,
+                    ego_trajectory=BezierTrajectory(candidate_id=0, control_points=cps),
+                    accel_interval=accel_idx, steer_interval=CFG.neutral_steer_index,
+                    accel_bias_mps2=bias[0], steer_bias_rad=bias[1], weights=levels)
+
+
+def test_braking_decision_stops_and_holds_then_expires(solver: MpcSolver) -> None:
+    m = S.straight_road()
+    ctrl = _ctrl(solver)
+    ctrl.on_decision(_decision((10.0, -4.8), stamp_s=0.0, latency_s=0.5, ttl_s=6.0))
+    log = _run(ctrl, m, (10.0, -4.8, 0.0, 10.0), 90)
+    modes = [c.mode for _, _, c in log]
+    assert modes[:5] == ["baseline"] * 5  # not before t0 + latency
+    assert modes[5] == "decision" and log[5][2].decision_id == "d0.0"
+    v = {round(t, 1): x[3] for t, x, _ in log}
+    pos = {round(t, 1): x[0] for t, x, _ in log}
+    assert v[3.0] < 5.0 and v[5.9] < 0.6  # braking hard, then (nearly) standing
+    assert pos[5.9] - pos[4.5] < 1.5  # holding, not creeping on
+    assert modes[-1] == "baseline"  # expired at t0 + ttl
+
+
+def test_stale_agents_brake(solver: MpcSolver) -> None:
+    ctrl = _ctrl(solver)
+    m = S.straight_road()
+    ego = S.ego_state(x_m=10.0, y_m=-4.8, yaw_rad=0.0, v_mps=8.0, stamp_s=5.0, seq=50)
+    ctl = ctrl.compute(S.observation(m, ego, agents_stamp_s=4.0))
+    assert ctl.mode == "brake" and "stale" in ctl.solver_status
+    assert ctl.accel_mps2 == pytest.approx(-ctrl.vehicle.safe_brake_mps2)
+    ctl = ctrl.compute(S.observation(m, ego), now_s=6.0)
+    assert ctl.mode == "brake"
+
+
+def test_tiny_time_budget_fails_safely() -> None:
+    cfg = CFG.model_copy(update={"time_budget_s": 1e-6})
+    ctrl = MpcController(cfg)
+    m = S.straight_road()
+    modes = []
+    for k in range(6):
+        ego = S.ego_state(x_m=10.0, y_m=-4.8, yaw_rad=0.0, v_mps=5.0, stamp_s=k * 0.1, seq=k)
+        obs = S.observation(m, ego)
+        ctl = ctrl.compute(obs)
+        modes.append(ctl.mode)
+        assert math.isfinite(ctl.accel_mps2) and ctl.accel_mps2 < 0.0
+    assert set(modes) == {"brake"}
+    assert ctrl.stats().solver_failures == 6
+    problem, _, _ = ctrl._problem(obs, None)
+    res = ctrl.solver.solve(problem)
+    assert not res.success and "budget" in res.status and np.all(np.isfinite(res.predicted))

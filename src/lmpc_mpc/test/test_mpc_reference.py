@@ -1,0 +1,87 @@
+"""Bezier candidates on hand-made maps (straight road, left turn, arc)."""
+import math
+
+import numpy as np
+import pytest
+
+from lmpc_mpc import synthetic as S
+from lmpc_mpc.reference import (
+    Candidate,
+    _Polyline,
+    bezier_points,
+    candidates_for_pose,
+    closest_heading,
+    route_candidate,
+    time_parameterize,
+)
+
+
+def _max_dev(cand: Candidate, centre: np.ndarray) -> float:
+    line = _Polyline.of(centre)
+    return max(line.project(float(p[0]), float(p[1]))[1] for p in cand.sample(200))
+
+
+def test_bezier_endpoints_and_degree_one_is_a_line() -> None:
+    cps = [(0.0, 0.0), (3.0, 4.0), (10.0, 0.0)]
+    pts = bezier_points(cps, 11)
+    assert np.allclose(pts[0], cps[0]) and np.allclose(pts[-1], cps[-1])
+    line = bezier_points([(0.0, 0.0), (10.0, 0.0)], 11)
+    assert np.allclose(line[:, 0], np.linspace(0, 10, 11))
+
+
+def test_straight_road_keep_and_change_lane() -> None:
+    m = S.straight_road()
+    cands = candidates_for_pose(m, x_m=20.0, y_m=-4.8, yaw_rad=0.0, lane_id="E0_0")
+    labels = [c.label for c in cands]
+    assert labels[0] == "continue in lane" and "change to the left lane" in labels
+    keep = cands[0]
+    assert keep.control_points[0] == (20.0, -4.8)
+    assert keep.control_points[-1][0] == pytest.approx(80.0, abs=0.5)
+    assert all(abs(p[1] + 4.8) < 1e-6 for p in keep.control_points)
+    change = cands[labels.index("change to the left lane")]
+    assert change.control_points[-1][1] == pytest.approx(-1.6, abs=1e-6)
+    assert keep.length_m() == pytest.approx(60.0, abs=0.5)
+
+
+def test_left_turn_candidates_through_internal_lanes() -> None:
+    m = S.four_way_junction()
+    cands = candidates_for_pose(m, x_m=1.6, y_m=-30.0, yaw_rad=math.pi / 2, lane_id="S_in_0")
+    by_label = {c.label: c for c in cands}
+    assert set(by_label) == {"go straight through the junction", "turn left at the junction",
+                             "turn right at the junction"}
+    left = by_label["turn left at the junction"]
+    assert ":J_1_0" in left.lane_ids and left.lane_ids[-1] == "W_out_0"
+    lanes = {ln.id: ln for ln in m.lanes}
+    centre = np.vstack([np.asarray(lanes[i].centerline) for i in left.lane_ids])
+    assert _max_dev(left, centre) < 1.0  # stays within the lane (width 3.2 m)
+    end = np.asarray(left.control_points[-1])
+    assert end[0] < -20.0 and end[1] == pytest.approx(1.6, abs=0.1)
+
+
+def test_arc_candidate_follows_the_arc() -> None:
+    m = S.arc_road(radius_m=30.0)
+    (cand,) = candidates_for_pose(m, x_m=0.0, y_m=0.0, yaw_rad=0.0, lane_id=None)
+    assert cand.lane_ids[0] == "A_0"
+    radii = np.hypot(*(cand.sample(100) - [0.0, 30.0]).T)
+    assert np.all(np.abs(radii - 30.0) < 1.5)  # within the half lane width (1.6 m)
+
+
+def test_closest_heading_and_route() -> None:
+    m = S.four_way_junction()
+    cands = candidates_for_pose(m, x_m=1.6, y_m=-30.0, yaw_rad=math.pi / 2, lane_id="S_in_0")
+    assert closest_heading(cands, math.pi / 2).label == "go straight through the junction"
+    ego = S.ego_state(x_m=1.6, y_m=-30.0, yaw_rad=math.pi / 2, lane_id="S_in_0")
+    route = route_candidate(m, ego)
+    assert route.lane_ids == ("S_in_0", ":J_1_0", "W_out_0")
+
+
+def test_time_parameterize_progress_speed_limit_and_curves() -> None:
+    m = S.arc_road(radius_m=20.0, speed_mps=15.0)
+    (cand,) = candidates_for_pose(m, x_m=0.0, y_m=0.0, yaw_rad=0.0, lane_id="A_0")
+    rows = time_parameterize(cand.sample(200), v0_mps=2.0, v_max_mps=15.0, a_max_mps2=1.5,
+                             a_lat_max_mps2=2.0, horizon=40, dt_s=0.1)
+    assert rows.shape == (41, 4)
+    step = np.hypot(*np.diff(rows[:, :2], axis=0).T)
+    assert np.all(step > 0.0)  # monotone progress
+    assert np.all(np.diff(rows[:, 3]) <= 1.5 * 0.1 + 1e-9)
+    assert rows[:, 3].max() <= math.sqrt(2.0 * 20.0) + 0.3  # curve cap, not 15 m/s
