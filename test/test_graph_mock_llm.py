@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import REPO, run_graph
+from graphkit import REPO, run_graph
 
 pytestmark = pytest.mark.graph
 

@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from conftest import RUN_GRAPH, TOPICS
+from graphkit import RUN_GRAPH, TOPICS
 
 pytestmark = pytest.mark.graph
 

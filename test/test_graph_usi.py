@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import run_graph
+from graphkit import run_graph
 
 pytestmark = pytest.mark.graph
 
