@@ -10,7 +10,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 PKGS := src/lmpc_msgs_py src/lmpc_mpc src/lmpc_bridge src/lmpc_llm_planner
 SETUPS := pyproject.toml $(foreach p,$(PKGS),$(p)/setup.py)
 
-.PHONY: install demo test clean
+.PHONY: install demo test lint clean
 
 install: $(STAMP)
 
@@ -23,7 +23,10 @@ $(STAMP): $(SETUPS)
 demo: install
 	$(PY) scripts/run_graph.py --scenario usi --seed 0 --planner rules --clock sync
 
-test: install
+lint: install
+	$(PY) -m flake8 src scripts test
+
+test: install lint
 	$(PY) -m pytest
 
 clean:

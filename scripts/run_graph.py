@@ -123,7 +123,8 @@ def _signal_group(proc: subprocess.Popen[str], sig: int) -> None:
 
 
 def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--scenario", default="usi", help="scenario family (default usi)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--planner", choices=["rules", "none", "mock"], default="rules",
@@ -131,7 +132,8 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
                          "mock: the mock LLM node playing --mock-script")
     ap.add_argument("--mock-script", type=Path, help="scripted decisions for --planner mock")
     ap.add_argument("--clock", choices=["sync", "realtime"], default="sync")
-    ap.add_argument("--run-dir", type=Path, help="run folder (default runs/<scenario>-<seed>-<time>)")
+    ap.add_argument("--run-dir", type=Path,
+                    help="run folder (default runs/<scenario>-<seed>-<time>)")
     ap.add_argument("--summary-json", type=Path, help="also write the summary here")
     ap.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID for this run (default: env)")
     ap.add_argument("--max-time-s", type=float, default=200.0, help="episode limit, sim seconds")
@@ -255,12 +257,13 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
 def main(argv: Optional[Sequence[str]] = None) -> int:
     args = parse_args(argv)
     summary = run(args)
+    metrics = summary["metrics"] if isinstance(summary["metrics"], dict) else {}
     print(
         f"[run_graph] outcome={summary['outcome']} sim={summary['sim_time_s']:.1f}s "
         f"wall={summary['wall_time_s']:.1f}s rtf={summary['real_time_factor']} "
         f"decisions={summary['decisions']} fallbacks={summary['fallbacks']} "
         f"solve_ms={summary['mpc_solve_ms']} latency_ms={summary['control_latency_ms']} "
-        f"O.C.={summary['metrics'].get('overall_cost') if summary['metrics'] else None} "  # type: ignore[union-attr]
+        f"O.C.={metrics.get('overall_cost')} "
         f"run_dir={summary['run_dir']}",
         flush=True,
     )

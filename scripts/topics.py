@@ -70,12 +70,16 @@ def sim_stamp(msg: Any) -> Optional[float]:
 
 
 def wait_for_topics(node: Node, timeout_s: float) -> list[tuple[str, list[str]]]:
+    """Topics once discovery has settled: the set unchanged for 1 s (or ``timeout_s``)."""
     deadline = time.monotonic() + timeout_s
     found: list[tuple[str, list[str]]] = []
+    stable_since = time.monotonic()
     while time.monotonic() < deadline:
         rclpy.spin_once(node, timeout_sec=0.1)
-        found = node.get_topic_names_and_types()
-        if any(name.startswith("/lmpc") for name, _ in found):
+        now = node.get_topic_names_and_types()
+        if now != found:
+            found, stable_since = now, time.monotonic()
+        elif found and time.monotonic() - stable_since > 1.0:
             break
     return found
 
@@ -128,8 +132,9 @@ def cmd_list(node: Node, args: argparse.Namespace) -> int:
     for name, types in sorted(found):
         wall, sim = meters[name].rates()
         pubs = node.count_publishers(name)
-        print(f"{name:<28} {types[0]:<36} {pubs:>4} "
-              f"{'-' if wall is None else f'{wall:.1f}':>8} {'-' if sim is None else f'{sim:.2f}':>7}")
+        wall_txt = "-" if wall is None else f"{wall:.1f}"
+        sim_txt = "-" if sim is None else f"{sim:.2f}"
+        print(f"{name:<28} {types[0]:<36} {pubs:>4} {wall_txt:>8} {sim_txt:>7}")
     return 0
 
 
@@ -161,7 +166,8 @@ def cmd_echo(node: Node, args: argparse.Namespace) -> int:
         print("---", flush=True)
         count[0] += 1
 
-    node.create_subscription(message_class(type_name), args.topic, show, _qos_for(node, args.topic))
+    node.create_subscription(message_class(type_name), args.topic, show,
+                             _qos_for(node, args.topic))
     spin_for(node, args.timeout_s, stop=lambda: bool(args.count) and count[0] >= args.count)
     return 0 if count[0] else 1
 
@@ -182,7 +188,8 @@ def cmd_hz(node: Node, args: argparse.Namespace) -> int:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--discovery-s", type=float, default=3.0, help="wait for discovery")
     sub = ap.add_subparsers(dest="cmd", required=True)
     p_list = sub.add_parser("list", help="topics with types and measured rates")

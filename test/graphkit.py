@@ -45,7 +45,8 @@ def run_graph(tmp_path: Path, domain_id: int, *extra: str, timeout_s: float = 30
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, cwd=tmp_path)
     output = proc.stdout + proc.stderr
     if not summary_path.exists():
-        raise AssertionError(f"run_graph wrote no summary (exit {proc.returncode}):\n{output[-4000:]}")
+        raise AssertionError(
+            f"run_graph wrote no summary (exit {proc.returncode}):\n{output[-4000:]}")
     summary = json.loads(summary_path.read_text())
     episode_path = run_dir / "episode.json"
     episode = json.loads(episode_path.read_text()) if episode_path.exists() else {}

@@ -17,7 +17,8 @@ def test_stop_holds_the_ego_before_the_junction_and_go_lets_it_pass(
     tmp_path: Path, domain_id: int
 ) -> None:
     held = run_graph(tmp_path / "stop", domain_id, "--planner", "mock", "--mock-script",
-                     str(DATA / "stop_then_go.yaml"), "--scenario", "usi", "--seed", "1", "--quiet")
+                     str(DATA / "stop_then_go.yaml"), "--scenario", "usi", "--seed", "1",
+                     "--quiet")
     assert held.summary["outcome"] == "reached", held.output[-3000:]
     steps = held.episode["record"]["steps"]
     holding = [s for s in steps if 6.0 <= s["t_s"] < HOLD_UNTIL_S]

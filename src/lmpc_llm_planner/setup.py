@@ -1,13 +1,13 @@
 from glob import glob
 
-from setuptools import setup
+from setuptools import find_packages, setup
 
 package_name = "lmpc_llm_planner"
 
 setup(
     name=package_name,
     version="0.1.0",
-    packages=[package_name],
+    packages=find_packages(exclude=["test", "test.*"]),
     package_data={package_name: ["config/*.yaml", "data/*"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),

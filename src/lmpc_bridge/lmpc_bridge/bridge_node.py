@@ -117,7 +117,8 @@ class BridgeNode(LmpcNode):
 
         self.sim = SumoSim(work_dir=run_dir / "scene")
         self.get_logger().info(
-            f"building scene {self.cfg.scenario} seed {self.cfg.seed} ({self.cfg.clock_mode} clock)"
+            f"building scene {self.cfg.scenario} seed {self.cfg.seed} "
+            f"({self.cfg.clock_mode} clock)"
         )
         self.sim.reset(self.cfg.scenario, self.cfg.seed, max_time_s=self.cfg.max_time_s)
 
@@ -127,7 +128,8 @@ class BridgeNode(LmpcNode):
         self.pub_agents = self.json_publisher(AgentArray, topics.AGENTS)
         self.pub_signals = self.json_publisher(SignalStates, topics.SIGNALS)
         self.pub_episode = self.json_publisher(EpisodeStatus, topics.EPISODE, lmpc_qos.LATCHED)
-        self.pub_odom = self.create_publisher(Odometry, self.topic(topics.EGO_ODOM), lmpc_qos.MIRROR)
+        self.pub_odom = self.create_publisher(
+            Odometry, self.topic(topics.EGO_ODOM), lmpc_qos.MIRROR)
 
         self.json_subscription(Control, topics.CONTROL, self._on_control)
         self.json_subscription(Decision, topics.DECISION, self._on_decision)
@@ -188,12 +190,14 @@ class BridgeNode(LmpcNode):
     def _ready_to_start(self) -> Optional[str]:
         """None when every participant is connected, else what we wait for."""
         need_subs = 2 if self.cfg.wait_for_planner else 1
-        if self.pub_ego.subscription_count() < need_subs:
-            return f"subscribers of {self.pub_ego.topic} ({self.pub_ego.subscription_count()} of {need_subs})"
-        if self.count_publishers(self.topic(topics.CONTROL)) < 1:
-            return f"a publisher on {self.topic(topics.CONTROL)} (mpc_controller)"
-        if self.cfg.wait_for_planner and self.count_publishers(self.topic(topics.PLANNER_STATUS)) < 1:
-            return f"a publisher on {self.topic(topics.PLANNER_STATUS)} (llm_planner)"
+        have_subs = self.pub_ego.subscription_count()
+        if have_subs < need_subs:
+            return f"subscribers of {self.pub_ego.topic} ({have_subs} of {need_subs})"
+        control, status = self.topic(topics.CONTROL), self.topic(topics.PLANNER_STATUS)
+        if self.count_publishers(control) < 1:
+            return f"a publisher on {control} (mpc_controller)"
+        if self.cfg.wait_for_planner and self.count_publishers(status) < 1:
+            return f"a publisher on {status} (llm_planner)"
         return None
 
     def _publish_step(self) -> None:
@@ -210,7 +214,8 @@ class BridgeNode(LmpcNode):
             self.next_progress_s = t + self.cfg.progress_period_s
             self.get_logger().info(
                 f"progress t={t:.1f}s v={obs.ego.v_mps:.1f}m/s "
-                f"dist_to_target={obs.ego.dist_to_target_m:.1f}m decisions={len(self.stats.decisions)}"
+                f"dist_to_target={obs.ego.dist_to_target_m:.1f}m "
+                f"decisions={len(self.stats.decisions)}"
             )
             self.pub_episode.publish(self.sim.status())
 
@@ -243,7 +248,8 @@ class BridgeNode(LmpcNode):
                            "braking the ego at a bounded deceleration")
         else:
             self.stats.solve_ms.append(control.solve_time_ms)
-            self.stats.control_modes[control.mode] = self.stats.control_modes.get(control.mode, 0) + 1
+            modes = self.stats.control_modes
+            modes[control.mode] = modes.get(control.mode, 0) + 1
         timing = self.timing.pop(k, None)
         if timing is not None and timing.control_latency_ms is not None and control is not None:
             self.stats.latency_ms.append(timing.control_latency_ms)

@@ -255,14 +255,15 @@ class MpcController:
         n = cfg.horizon
         limit = np.full(n + 1, np.inf)
         hold_steps = int(math.ceil(cfg.safety_headway_s / cfg.dt_s))
-        for ob, v in zip(obstacles, speeds_mps):
+        # one vectorised projection of every predicted position onto the path
+        s_all, d_all = line.project_many(np.concatenate([ob.xy_m for ob in obstacles]))
+        s_all = s_all.reshape(len(obstacles), n + 1)
+        d_all = d_all.reshape(len(obstacles), n + 1)
+        for i, (ob, v) in enumerate(zip(obstacles, speeds_mps)):
             lat_clear = 0.5 * (veh.width_m + ob.width_m) + cfg.safety_lateral_gap_m
             gap = cfg.safety_gap_m + 0.5 * (veh.length_m + ob.length_m)
-            on = np.zeros(n + 1, dtype=bool)
-            s_k = np.zeros(n + 1)
-            for k in range(n + 1):
-                s_k[k], dist, _ = line.project(float(ob.xy_m[k, 0]), float(ob.xy_m[k, 1]))
-                on[k] = dist < lat_clear and 0.0 < s_k[k] < line.length_m - 1e-6
+            s_k = s_all[i]
+            on = (d_all[i] < lat_clear) & (s_k > 0.0) & (s_k < line.length_m - 1e-6)
             if not np.any(on):
                 continue
             if on[0] and np.all(np.diff(s_k[on]) >= -1e-6):

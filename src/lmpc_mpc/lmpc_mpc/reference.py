@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from collections import OrderedDict
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Optional, Sequence
 
 import numpy as np
@@ -108,20 +109,45 @@ class _Polyline:
     def length_m(self) -> float:
         return float(self.cum_m[-1])
 
+    @cached_property
+    def _segments(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Segment starts, directions, squared lengths (floored) and lengths, computed
+        once per polyline (projection is the hot path of the controller)."""
+        a = self.pts[:-1]
+        d = np.diff(self.pts, axis=0)
+        len2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
+        return a, d, len2, np.sqrt(len2)
+
     def project(self, x_m: float, y_m: float) -> tuple[float, float, float]:
         """(arc length, distance, heading) of the closest point to (x, y)."""
         if len(self.pts) == 1:
             return 0.0, float(math.hypot(x_m - self.pts[0, 0], y_m - self.pts[0, 1])), 0.0
-        a = self.pts[:-1]
-        d = np.diff(self.pts, axis=0)
-        seg_len2 = np.maximum(np.sum(d * d, axis=1), 1e-12)
-        p = np.array([x_m, y_m])
-        t = np.clip(np.sum((p - a) * d, axis=1) / seg_len2, 0.0, 1.0)
-        closest = a + t[:, None] * d
-        dist = np.hypot(*(closest - p).T)
-        i = int(np.argmin(dist))
-        s = float(self.cum_m[i] + t[i] * math.sqrt(seg_len2[i]))
-        return s, float(dist[i]), float(math.atan2(d[i, 1], d[i, 0]))
+        a, d, len2, seg = self._segments
+        px = x_m - a[:, 0]
+        py = y_m - a[:, 1]
+        t = np.clip((px * d[:, 0] + py * d[:, 1]) / len2, 0.0, 1.0)
+        ex = px - t * d[:, 0]
+        ey = py - t * d[:, 1]
+        dist2 = ex * ex + ey * ey
+        i = int(np.argmin(dist2))
+        s = float(self.cum_m[i] + t[i] * seg[i])
+        return s, math.sqrt(float(dist2[i])), math.atan2(float(d[i, 1]), float(d[i, 0]))
+
+    def project_many(self, xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Vectorised :meth:`project` of (M, 2) points: (arc lengths, distances)."""
+        p = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+        if len(self.pts) == 1:
+            return np.zeros(len(p)), np.hypot(*(p - self.pts[0]).T)
+        a, d, len2, seg = self._segments
+        px = p[:, 0, None] - a[None, :, 0]
+        py = p[:, 1, None] - a[None, :, 1]
+        t = np.clip((px * d[None, :, 0] + py * d[None, :, 1]) / len2, 0.0, 1.0)
+        ex = px - t * d[None, :, 0]
+        ey = py - t * d[None, :, 1]
+        dist2 = ex * ex + ey * ey
+        i = np.argmin(dist2, axis=1)
+        rows = np.arange(len(p))
+        return self.cum_m[i] + t[rows, i] * seg[i], np.sqrt(dist2[rows, i])
 
     def at(self, s_m: np.ndarray | float) -> np.ndarray:
         """Points at arc lengths ``s_m``; beyond the ends the line goes on straight."""
@@ -383,7 +409,8 @@ class TimedReference:
 
 
 def _path_geometry(points: np.ndarray, ds_m: float) -> tuple[_Polyline, np.ndarray,
-                                                               np.ndarray, np.ndarray]:
+                                                               np.ndarray, np.ndarray,
+                                                               np.ndarray]:
     line = _Polyline.of(points)
     length = max(line.length_m, ds_m)
     s = np.arange(0.0, length + ds_m, ds_m)
@@ -396,7 +423,7 @@ def _path_geometry(points: np.ndarray, ds_m: float) -> tuple[_Polyline, np.ndarr
     # smooth the numerical curvature a little (3-tap average) so the cap is not noisy
     if len(kappa) >= 3:
         kappa = np.convolve(np.pad(kappa, 1, mode="edge"), np.ones(3) / 3.0, mode="valid")
-    return line, s, yaw, kappa
+    return line, s, yaw, kappa, xy
 
 
 def timed_reference(points: np.ndarray, *, v0_mps: float, v_max_mps: float, a_max_mps2: float,
@@ -416,43 +443,60 @@ def timed_reference(points: np.ndarray, *, v0_mps: float, v_max_mps: float, a_ma
     if not np.all(np.isfinite(pts)):
         raise ReferencePathError("path contains NaN or infinite coordinates")
     dec = a_dec_mps2 if a_dec_mps2 is not None else 2.0 * a_max_mps2
-    line, s, yaw, kappa = _path_geometry(pts, ds_m)
+    line, s, yaw, kappa, path_xy = _path_geometry(pts, ds_m)
     v_cap = np.minimum(v_max_mps, np.sqrt(a_lat_max_mps2 / np.maximum(np.abs(kappa), 1e-6)))
     if stop_at_m is not None:
         v_cap = np.where(s >= stop_at_m, 0.0, v_cap)
-    # backward pass: be able to slow down for curves / the stop point with `dec`
-    v_b = v_cap.copy()
-    for i in range(len(v_b) - 2, -1, -1):
-        v_b[i] = min(v_b[i], math.sqrt(v_b[i + 1] ** 2 + 2.0 * dec * ds_m))
+    # backward pass: be able to slow down for curves / the stop point with `dec`, i.e.
+    # v_b[i]^2 = min_{j>=i} v_cap[j]^2 + 2 dec ds (j - i): a reverse running minimum
+    step2 = 2.0 * dec * ds_m * np.arange(len(v_cap))
+    v_b = np.sqrt(np.maximum(
+        np.minimum.accumulate((v_cap ** 2 + step2)[::-1])[::-1] - step2, 0.0))
     end_v = float(v_b[-1])
     s_end = float(s[-1])
-    states = np.empty((horizon + 1, 4))
-    curv = np.empty(horizon + 1)
+    n_s = len(s)
+    v_b_list = v_b.tolist()
+    limits = None if s_limit_m is None else np.asarray(s_limit_m, dtype=float).tolist()
+    stop_cap = None if stop_at_m is None else max(float(stop_at_m), 0.0)
+    # forward pass in plain floats (the hot loop of the controller): positions and
+    # speeds only; the states are interpolated in one vectorised step below
+    pos_k = [0.0] * (horizon + 1)
+    v_k = [0.0] * (horizon + 1)
     pos, v = 0.0, max(0.0, float(v0_mps))
     for k in range(horizon + 1):
-        if stop_at_m is not None:
-            pos = min(pos, max(stop_at_m, 0.0))
-        xy = line.at(pos)[0]
+        if stop_cap is not None:
+            pos = min(pos, stop_cap)
+        pos_k[k] = pos
+        v_k[k] = v
         if pos <= s_end:
-            yk = float(np.interp(pos, s, np.unwrap(yaw)))
-            ck = float(np.interp(pos, s, kappa))
+            f = pos / ds_m
+            i = min(int(f), n_s - 2) if n_s > 1 else 0
+            w = min(max(f - i, 0.0), 1.0) if n_s > 1 else 0.0
+            target = v_b_list[i] + w * (v_b_list[min(i + 1, n_s - 1)] - v_b_list[i])
         else:
-            yk, ck = float(yaw[-1]), 0.0
-        states[k] = (xy[0], xy[1], _wrap(yk), v)
-        curv[k] = ck
-        target = float(np.interp(pos, s, v_b)) if pos <= s_end else end_v
-        if s_limit_m is not None and k + 1 < len(s_limit_m):
-            room = max(0.0, float(s_limit_m[k + 1]) - pos)
+            target = end_v
+        if limits is not None and k + 1 < len(limits):
+            room = max(0.0, limits[k + 1] - pos)
             target = min(target, math.sqrt(2.0 * dec * room))
         v_next = min(target, v + a_max_mps2 * dt_s) if v < target else max(target, v - dec * dt_s)
         prev = pos
         pos += 0.5 * (v + v_next) * dt_s
-        if s_limit_m is not None and k + 1 < len(s_limit_m):
+        if limits is not None and k + 1 < len(limits):
             # never backwards: a reference that reverses would pull the car back
-            pos = max(prev, min(pos, float(s_limit_m[k + 1])))
+            pos = max(prev, min(pos, limits[k + 1]))
             v_next = min(v_next, (pos - prev) / dt_s * 2.0)
         v = max(0.0, v_next)
-    return TimedReference(states=states, curvature_1pm=curv, path=line.at(s))
+    pos_a = np.array(pos_k)
+    xy = line.at(pos_a)
+    inside = pos_a <= s_end
+    yaw_u = np.unwrap(yaw)
+    yaws = np.where(inside, np.interp(pos_a, s, yaw_u), yaw[-1])
+    curv = np.where(inside, np.interp(pos_a, s, kappa), 0.0)
+    states = np.empty((horizon + 1, 4))
+    states[:, 0:2] = xy
+    states[:, 2] = (yaws + math.pi) % (2.0 * math.pi) - math.pi
+    states[:, 3] = v_k
+    return TimedReference(states=states, curvature_1pm=curv, path=path_xy)
 
 
 def time_parameterize(points: np.ndarray, *, v0_mps: float, v_max_mps: float, a_max_mps2: float,

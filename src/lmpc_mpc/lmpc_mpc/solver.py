@@ -27,7 +27,6 @@ parameters of one compiled problem per number of obstacle slots. Unused slots ha
 from __future__ import annotations
 
 import math
-import os
 import time
 from dataclasses import dataclass, field
 from typing import Optional, Sequence
@@ -44,9 +43,18 @@ NREF = 5
 NOBS = 6
 N_W = 14  # pos, v, yaw, steer_trk, s_a, s_d, g_a, g_d, l_a, l_d, saf, bias_a, bias_d, lat
 _EPS_D2 = 1e-2
-JIT = os.environ.get("LMPC_MPC_JIT", "0") == "1"
-"""Compile the NLP functions with gcc (CasADi JIT): ~3x faster solves, but ~1 min to
-build each problem size at start-up, so it is opt-in (``LMPC_MPC_JIT=1``)."""
+_RELEVANCE_MARGIN_M = 6.0
+"""An obstacle farther than this beyond ``d_hat`` from every guess of the ego at a stage
+is left out of that stage (its safety term is zero there; see ``MpcSolver._pack``)."""
+_RELEVANCE_SPEED_MPS = 3.0
+"""Speed added to the guesses' speed when judging relevance (``d_hat`` grows with v)."""
+_TOL = 1e-3
+"""NLP tolerance (scaled KKT error; FATROP and IPOPT). 1e-3 m / 1e-3 m/s^2 is far below
+what a 0.1 s control step can use; 1e-4 costs one more iteration (5 -> 6 median)."""
+_MU_INIT = 1e-1
+"""FATROP's initial barrier parameter. Smaller values save iterations (1e-3: 6 -> 4
+median) but keep the solution in the warm start's basin: in the oncoming-car test the
+ego then crept behind the passed car instead of turning (see docs/lmpc_mpc.md)."""
 
 
 class MpcInputError(ValueError):
@@ -109,6 +117,17 @@ def _bicycle(vehicle: VehicleParams) -> ca.Function:
     rhs = ca.vertcat(s[3] * ca.cos(s[2] + beta), s[3] * ca.sin(s[2] + beta),
                      s[3] / vehicle.lr_m * ca.sin(beta), u[0])
     return ca.Function("f", [s, u], [rhs])
+
+
+def midpoint_step(f: ca.Function, s: ca.SX, u: ca.SX, dt_s: float) -> ca.SX:
+    """One explicit midpoint (RK2) step of ``s' = f(s, u)``: the MPC's internal model.
+
+    An approximation of the plant (the bridge integrates RK4 in two substeps): over a
+    3 s horizon it is within 8 mm of a fine integration for |steer| <= 0.5 rad, while
+    its exact Hessian costs 2.5x fewer operations than RK4's (the largest share of an
+    interior-point iteration here)."""
+    k1 = f(s, u)
+    return s + dt_s * f(s + 0.5 * dt_s * k1, u)
 
 
 def rk4_step(f: ca.Function, s: ca.SX, u: ca.SX, dt_s: float) -> ca.SX:
@@ -230,7 +249,7 @@ class MpcSolver:
                 w_vars.append(u)
                 lbx += u_lb
                 ubx += u_ub
-                nxt = rk4_step(f, x[:4], u, dt)
+                nxt = midpoint_step(f, x[:4], u, dt)
                 g.append(xs[k + 1] - ca.vertcat(nxt, u, x[4], x[5]))
                 lbg += [0.0] * NX
                 ubg += [0.0] * NX
@@ -263,19 +282,16 @@ class MpcSolver:
                 "equality": equality,
                 "expand": True,
                 "fatrop": {"print_level": 0, "max_iter": self.config.max_iterations,
-                           "tol": 1e-5, "mu_init": 1e-1},
+                           "tol": _TOL, "mu_init": _MU_INIT},
                 "print_time": False,
                 "error_on_fail": False,
                 "debug": False,
             }
-            if JIT:
-                opts.update({"jit": True, "compiler": "shell",
-                             "jit_options": {"flags": ["-O1"], "verbose": False}})
         else:
             opts = {
                 "expand": True,
                 "ipopt": {"print_level": 0, "max_iter": self.config.max_iterations,
-                          "tol": 1e-5, "max_wall_time": budget, "sb": "yes",
+                          "tol": _TOL, "max_wall_time": budget, "sb": "yes",
                           "warm_start_init_point": "no"},
                 "print_time": False,
                 "error_on_fail": False,
@@ -306,6 +322,11 @@ class MpcSolver:
             c += w_saf * on * short ** 2
         return c
 
+    def warm_up(self) -> None:
+        """Build every compiled size now (~0.3 s each) so no step pays for it later."""
+        for size in self.config.agent_slot_sizes:
+            self.compiled(size)
+
     def compiled(self, n_slots: int) -> _Compiled:
         """The problem of ``n_slots`` obstacle slots (built on first use, ~0.1-1 s)."""
         if n_slots not in self._compiled:
@@ -318,7 +339,101 @@ class MpcSolver:
         self._warm_slots = None
 
     # -- parameters ----------------------------------------------------------------------
-    def _params(self, prob: MpcProblem, n_slots: int) -> tuple[np.ndarray, np.ndarray]:
+    def _obstacle_rows(self, prob: MpcProblem, ref: np.ndarray, yaw_ref: np.ndarray
+                       ) -> Optional[np.ndarray]:
+        """(n_obs, N+1, NOBS) slot rows (ox, oy, gap, headway, rho, on) of every obstacle
+        at every stage, or None without obstacles. One vectorised pass."""
+        n, cfg, veh = self.n, self.config, self.vehicle
+        obs = prob.obstacles
+        if not obs:
+            return None
+        n_o = len(obs)
+        xy = np.empty((n_o, n + 1, 2))
+        for i, ob in enumerate(obs):
+            a = np.asarray(ob.xy_m, dtype=float)
+            if a.shape != (n + 1, 2):
+                raise MpcInputError(f"obstacle {ob.obstacle_id!r}: xy_m must be ({n + 1}, 2), "
+                                    f"got {a.shape}")
+            xy[i] = a
+        half_l = 0.5 * veh.length_m
+        half_w = 0.5 * veh.width_m
+        length = np.array([ob.length_m for ob in obs])[:, None]
+        width = np.array([ob.width_m for ob in obs])[:, None]
+        virtual = np.array([ob.virtual for ob in obs])[:, None]
+        cos_r, sin_r = np.cos(yaw_ref), np.sin(yaw_ref)
+        lon_ahead = (xy[:, :, 0] - ref[:, 0]) * cos_r + (xy[:, :, 1] - ref[:, 1]) * sin_r
+        lat_clear = half_w + 0.5 * width + cfg.safety_lateral_gap_m
+        ahead = lon_ahead > -half_l
+        # behind the ego only near-overlap counts (a follower must not push us on); a
+        # red-light stop line has no headway and a small gap
+        gap_k = np.where(virtual, half_l + 1.0,
+                         np.where(ahead, cfg.safety_gap_m + half_l + 0.5 * length,
+                                  half_l + 0.5 * length + 0.5))
+        head = np.where(virtual | ~ahead, 0.0, cfg.safety_headway_s)
+        d_hat_ref = gap_k + head * ref[:, 3]
+        rows = np.empty((n_o, n + 1, NOBS))
+        rows[:, :, 0:2] = xy
+        rows[:, :, 2] = gap_k
+        rows[:, :, 3] = head
+        rows[:, :, 4] = np.maximum(d_hat_ref / lat_clear, 1.0)
+        rows[:, :, 5] = 1.0
+        return rows
+
+    def _relevance(self, rows: np.ndarray, guesses: list[np.ndarray],
+                   yaw_ref: np.ndarray) -> np.ndarray:
+        """(n_obs, N+1) how far (m) each obstacle's safety term is from switching on at
+        each stage, for the nearest ego guess (reference / shifted previous plan):
+        the stretched distance minus ``d_hat`` at a generous speed. Negative = active."""
+        cos_r, sin_r = np.cos(yaw_ref), np.sin(yaw_ref)
+        best = np.full(rows.shape[:2], np.inf)
+        for g in guesses:
+            dx = g[:, 0] - rows[:, :, 0]
+            dy = g[:, 1] - rows[:, :, 1]
+            lon = cos_r * dx + sin_r * dy
+            lat = -sin_r * dx + cos_r * dy
+            d = np.sqrt(lon ** 2 + (rows[:, :, 4] * lat) ** 2)
+            v = np.minimum(g[:, 3] + _RELEVANCE_SPEED_MPS, self.vehicle.max_speed_mps)
+            best = np.minimum(best, d - (rows[:, :, 2] + rows[:, :, 3] * v))
+        return best
+
+    def _pack(self, prob: MpcProblem, ref: np.ndarray, yaw_ref: np.ndarray
+              ) -> tuple[Optional[np.ndarray], int]:
+        """Per stage, the obstacles whose safety term can matter, nearest first:
+        (N+1, n_slots, NOBS) rows and the compiled slot count that holds them.
+
+        The safety term of an obstacle is exactly zero while the ego keeps farther than
+        ``d_hat`` from it, so an obstacle more than ``_RELEVANCE_MARGIN_M`` beyond that
+        from every guess of the ego at that stage (the reference and the shifted
+        previous plan) is left out of the stage. This is exact unless the solve moves
+        the ego farther than the margin from both guesses within one step; the next
+        step re-selects from the new plan. Slots are per stage, so the compiled size
+        follows the most obstacles *near one stage*, not the number attended."""
+        rows = self._obstacle_rows(prob, ref, yaw_ref)
+        if rows is None:
+            return None, self.config.agent_slot_sizes[0]
+        guesses = [ref]
+        if self._warm is not None:
+            w = self._warm
+            guesses.append(np.vstack([w[1:, :4], w[-1:, :4]]))
+        rel = self._relevance(rows, guesses, yaw_ref)
+        keep = rel < _RELEVANCE_MARGIN_M
+        count = int(keep.sum(axis=0).max())
+        n_slots = self.slots_for(count)
+        if count == 0:
+            return None, n_slots
+        # nearest-to-active first in every stage, irrelevant ones sorted to the end
+        order = np.argsort(np.where(keep, rel, np.inf), axis=0, kind="stable")[:n_slots]
+        k_idx = np.arange(self.n + 1)[None, :]
+        packed = rows[order, k_idx]  # (n_slots, N+1, NOBS)
+        packed[..., 5] = np.take_along_axis(keep, order, axis=0)
+        if len(order) < n_slots:
+            pad = np.zeros((n_slots - len(order), self.n + 1, NOBS))
+            pad[..., 4] = 1.0
+            packed = np.concatenate([packed, pad], axis=0)
+        packed[packed[..., 5] == 0.0, :5] = (0.0, 0.0, 0.0, 0.0, 1.0)
+        return np.transpose(packed, (1, 0, 2)), n_slots
+
+    def _params(self, prob: MpcProblem) -> tuple[np.ndarray, np.ndarray, int]:
         n, cfg, veh = self.n, self.config, self.vehicle
         ref = np.asarray(prob.reference, dtype=float)
         kap = np.asarray(prob.reference_curvature_1pm, dtype=float)
@@ -326,59 +441,39 @@ class MpcSolver:
             raise MpcInputError(
                 f"reference must be ({n + 1}, 4) and curvature ({n + 1},), got "
                 f"{ref.shape} and {kap.shape}")
-        a_prev = float(np.clip(prob.u_prev[0], -veh.max_decel_mps2, veh.max_accel_mps2))
-        d_prev = float(np.clip(prob.u_prev[1], -veh.max_steer_rad, veh.max_steer_rad))
-        a_prev2 = float(np.clip(prob.u_prev2[0], -veh.max_decel_mps2, veh.max_accel_mps2))
-        d_prev2 = float(np.clip(prob.u_prev2[1], -veh.max_steer_rad, veh.max_steer_rad))
-        x0 = np.array([*prob.x0, a_prev, d_prev, a_prev2, d_prev2], dtype=float)
+        a_lo, a_hi = -veh.max_decel_mps2, veh.max_accel_mps2
+        d_lim = veh.max_steer_rad
+        x0 = np.array([*prob.x0,
+                       min(max(prob.u_prev[0], a_lo), a_hi), min(max(prob.u_prev[1], -d_lim),
+                                                                 d_lim),
+                       min(max(prob.u_prev2[0], a_lo), a_hi), min(max(prob.u_prev2[1], -d_lim),
+                                                                  d_lim)], dtype=float)
         w = prob.weights
-        wv = np.array([
-            w.tracking.w_pos, w.tracking.w_v, w.tracking.w_yaw, w.tracking.w_steer,
-            w.action.w_accel, w.action.w_steer,
-            w.smoothness.w_g_accel, w.smoothness.w_g_steer,
-            w.smoothness.w_l_accel, w.smoothness.w_l_steer,
-            w.safety.w_saf, prob.bias[0], prob.bias[1], cfg.lateral_weight_factor],
-            dtype=float)
-        stage = np.zeros((n + 1, NREF + NOBS * n_slots))
+        wv = (w.tracking.w_pos, w.tracking.w_v, w.tracking.w_yaw, w.tracking.w_steer,
+              w.action.w_accel, w.action.w_steer,
+              w.smoothness.w_g_accel, w.smoothness.w_g_steer,
+              w.smoothness.w_l_accel, w.smoothness.w_l_steer,
+              w.safety.w_saf, prob.bias[0], prob.bias[1], cfg.lateral_weight_factor)
         # unwrap the reference yaw next to the current yaw so 1 - cos never sees a jump
         yaw_ref = np.unwrap(np.concatenate([[prob.x0[2]], ref[:, 2]]))[1:]
+        packed, n_slots = self._pack(prob, ref, yaw_ref)
+        p = np.empty(NX + N_W + (n + 1) * (NREF + NOBS * n_slots))
+        p[:NX] = x0
+        p[NX:NX + N_W] = wv
+        stage = p[NX + N_W:].reshape(n + 1, NREF + NOBS * n_slots)
         stage[:, 0:2] = ref[:, 0:2]
         stage[:, 2] = yaw_ref
         stage[:, 3] = ref[:, 3]
         stage[:, 4] = kap
-        half_l = 0.5 * veh.length_m
-        half_w = 0.5 * veh.width_m
-        cos_r, sin_r = np.cos(yaw_ref), np.sin(yaw_ref)
-        for i, ob in enumerate(prob.obstacles[:n_slots]):
-            xy = np.asarray(ob.xy_m, dtype=float)
-            if xy.shape != (n + 1, 2):
-                raise MpcInputError(f"obstacle {ob.obstacle_id!r}: xy_m must be ({n + 1}, 2), "
-                                    f"got {xy.shape}")
-            base = NREF + NOBS * i
-            lon_ahead = (xy[:, 0] - ref[:, 0]) * cos_r + (xy[:, 1] - ref[:, 1]) * sin_r
-            lat_clear = half_w + 0.5 * ob.width_m + cfg.safety_lateral_gap_m
-            if ob.virtual:
-                gap = half_l + 1.0
-                head = np.zeros(n + 1)
-            else:
-                gap = cfg.safety_gap_m + half_l + 0.5 * ob.length_m
-                ahead = lon_ahead > -half_l
-                head = np.where(ahead, cfg.safety_headway_s, 0.0)
-                # behind the ego only near-overlap counts (a follower must not push us on)
-                gap_k = np.where(ahead, gap, half_l + 0.5 * ob.length_m + 0.5)
-            if ob.virtual:
-                gap_k = np.full(n + 1, gap)
-            d_hat_ref = gap_k + head * ref[:, 3]
-            stage[:, base + 0] = xy[:, 0]
-            stage[:, base + 1] = xy[:, 1]
-            stage[:, base + 2] = gap_k
-            stage[:, base + 3] = head
-            stage[:, base + 4] = np.maximum(d_hat_ref / lat_clear, 1.0)
-            stage[:, base + 5] = 1.0
-        p = np.concatenate([x0, wv, stage.ravel()])
+        if packed is None:
+            obs = stage[:, NREF:].reshape(n + 1, n_slots, NOBS)
+            obs[:] = 0.0
+            obs[..., 4] = 1.0
+        else:
+            stage[:, NREF:] = packed.reshape(n + 1, NOBS * n_slots)
         if not np.all(np.isfinite(p)):
             raise MpcInputError("MPC problem contains NaN or infinite numbers")
-        return p, x0
+        return p, x0, n_slots
 
     def _initial_guess(self, x0: np.ndarray, n_slots: int) -> np.ndarray:
         n = self.n
@@ -398,24 +493,23 @@ class MpcSolver:
             xs_s[:, :4] = traj
             xs_s[:, 4:6] = np.vstack([x0[4:6], us_s])
             xs_s[:, 6:8] = np.vstack([x0[6:8], x0[4:6], us_s[:-1]])
-        guess = []
-        for k in range(n + 1):
-            guess.append(xs_s[k])
-            if k < n:
-                guess.append(us_s[k])
-        return np.concatenate(guess)
+        guess = np.empty((n + 1, NX + NU))
+        guess[:, :NX] = xs_s
+        guess[:n, NX:] = us_s
+        return guess.ravel()[: (n + 1) * NX + n * NU]
 
     # -- solving -------------------------------------------------------------------------
     def solve(self, problem: MpcProblem) -> MpcResult:
         """Solve one step. Never returns an unconverged or non-finite solution as success."""
         n = self.n
-        n_slots = self.slots_for(len(problem.obstacles))
-        comp = self.compiled(n_slots)
+        if not self._compiled:
+            self.warm_up()
         t0 = time.perf_counter()  # compiling is not part of the solve time
         try:
-            p, x0 = self._params(problem, n_slots)
+            p, x0, n_slots = self._params(problem)
         except MpcInputError as exc:
             return self._fail(f"bad input: {exc}", t0, 0)
+        comp = self.compiled(n_slots)
         w0 = self._initial_guess(x0, n_slots)
         try:
             sol = comp.solver(x0=w0, p=p, lbx=comp.lbx, ubx=comp.ubx, lbg=comp.lbg,
@@ -430,17 +524,12 @@ class MpcSolver:
             else str(raw)
         iters = int(stats.get("iter_count", 0) or 0)
         wsol = np.asarray(sol["x"]).ravel()
+        # variables are laid out stage-wise (x_0, u_0, x_1, u_1, ..., x_N)
         stage = np.empty((n + 1, NX + NU))
-        xs = np.empty((n + 1, NX))
-        us = np.empty((n, NU))
-        step = NX + NU
-        for k in range(n + 1):
-            xs[k] = wsol[k * step: k * step + NX]
-            if k < n:
-                us[k] = wsol[k * step + NX: (k + 1) * step]
-        stage[:, :NX] = xs
-        stage[:n, NX:] = us
-        stage[n, NX:] = us[-1]
+        stage.ravel()[: len(wsol)] = wsol
+        stage[n, NX:] = stage[n - 1, NX:]
+        xs = stage[:, :NX]
+        us = stage[:n, NX:]
         if not ok:
             return self._fail(f"not converged: {status}", t0, iters, elapsed)
         if not (np.all(np.isfinite(xs)) and np.all(np.isfinite(us))):

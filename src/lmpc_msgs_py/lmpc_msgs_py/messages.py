@@ -52,7 +52,6 @@ class LmpcMessage(BaseModel):
     SCHEMA: ClassVar[str] = ""
 
 
-
 class _Part(BaseModel):
     """Base of nested parts (no schema field of their own)."""
 
@@ -211,7 +210,8 @@ class SignalStates(LmpcMessage):
 
 
 # --- decision ----------------------------------------------------------------------------
-DecisionSource = Annotated[str, Field(pattern=r"^(rules|fallback|replay|mock|llm:[\w.:/\-]{1,96})$")]
+DecisionSource = Annotated[
+    str, Field(pattern=r"^(rules|fallback|replay|mock|llm:[\w.:/\-]{1,96})$")]
 DecisionMode = Literal["normal", "emergency"]
 WeightLevel = Literal["low", "normal", "high"]
 

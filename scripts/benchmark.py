@@ -1,0 +1,193 @@
+#!/usr/bin/env python3
+"""Benchmark: methods x scenario families x seeds, in-process (no ROS), in parallel workers.
+
+The same logic objects as the nodes (DESIGN §1): ``lmpc_bridge.runner.run_episode``
+with the MPC controller and, for ``lmpc-*`` methods, the planner core. Writes
+``results.csv`` (one row per scene and method), ``table.md`` (the paper's Table I
+layout) and ``summary.json`` (per family and method, plus the relative O.C.
+change of each method against ``mpc``).
+
+    benchmark.py --families usi --seeds 0-24 --methods mpc,lmpc-rules --out runs/bench
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import statistics
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+METHODS = ("mpc", "lmpc-rules")
+COLUMNS = ("family", "seed", "method", "outcome", "collision", "fail", "time_s", "ineff",
+           "pen_acc", "pen_dist", "overall_cost", "decisions", "fallbacks", "steps",
+           "solve_ms_median", "solve_ms_p99", "compute_ms_median", "compute_ms_p99", "wall_s",
+           "detail")
+
+_SIM: Any = None  # one SumoSim per worker process (libsumo: one simulation per process)
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"0-24"`` or ``"0,3,5-7"`` -> sorted unique seeds."""
+    seeds: set[int] = set()
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        lo, _, hi = part.partition("-")
+        seeds.update(range(int(lo), int(hi or lo) + 1))
+    if not seeds:
+        raise argparse.ArgumentTypeError(f"no seeds in {text!r}")
+    return sorted(seeds)
+
+
+def _percentile(values: Sequence[float], q: float) -> float:
+    if not values:
+        return math.nan
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, max(0, math.ceil(q * len(ordered)) - 1))]
+
+
+def make_planner(method: str) -> Any:
+    if method == "mpc":
+        return None
+    from lmpc_llm_planner.backends import make_backend
+    from lmpc_llm_planner.config import load_planner_config
+    from lmpc_llm_planner.planner import PlannerCore
+    from lmpc_mpc.config import load_mpc_config
+
+    backend_name = method.removeprefix("lmpc-")
+    config = load_planner_config(overrides={"backend": backend_name})
+    return PlannerCore(config, make_backend(config), load_mpc_config())
+
+
+def run_scene(method: str, family: str, seed: int, work_dir: str) -> dict[str, Any]:
+    """One episode in this worker process; returns its results row."""
+    global _SIM
+    from lmpc_bridge.runner import run_episode
+    from lmpc_bridge.sim import SumoSim
+    from lmpc_mpc.config import load_mpc_config
+    from lmpc_mpc.controller import MpcController
+
+    if _SIM is None:
+        _SIM = SumoSim(work_dir=Path(work_dir))
+    started = time.perf_counter()
+    result = run_episode(_SIM, family=family, seed=seed,
+                         controller=MpcController(load_mpc_config()),
+                         planner=make_planner(method))
+    m = result.metrics
+    return {
+        "family": family, "seed": seed, "method": method, "outcome": result.outcome,
+        "collision": int(result.outcome == "collision"),
+        "fail": int(result.outcome in ("timeout", "error")),
+        "time_s": round(m.time_s, 3), "ineff": round(m.ineff, 4), "pen_acc": round(m.pen_acc, 4),
+        "pen_dist": round(m.pen_dist, 4), "overall_cost": round(m.overall_cost, 4),
+        "decisions": result.decisions, "fallbacks": result.fallbacks, "steps": m.steps,
+        "solve_ms_median": round(statistics.median(result.solve_times_ms), 3)
+        if result.solve_times_ms else math.nan,
+        "solve_ms_p99": round(_percentile(result.solve_times_ms, 0.99), 3),
+        "compute_ms_median": round(statistics.median(result.compute_wall_ms), 3)
+        if result.compute_wall_ms else math.nan,
+        "compute_ms_p99": round(_percentile(result.compute_wall_ms, 0.99), 3),
+        "wall_s": round(time.perf_counter() - started, 2),
+        "detail": result.detail,
+    }
+
+
+def aggregate(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
+    """Per family and method: counts of collisions and fails, means of the rest."""
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    for family in sorted({r["family"] for r in rows}):
+        out[family] = {}
+        for method in sorted({r["method"] for r in rows if r["family"] == family},
+                             key=lambda m: (m != "mpc", m)):
+            sel = [r for r in rows if r["family"] == family and r["method"] == method]
+            out[family][method] = {
+                "scenes": len(sel),
+                "collisions": sum(r["collision"] for r in sel),
+                "fails": sum(r["fail"] for r in sel),
+                **{k: round(statistics.fmean(r[k] for r in sel), 3)
+                   for k in ("ineff", "time_s", "pen_acc", "pen_dist", "overall_cost")},
+            }
+        base = out[family].get("mpc")
+        for method, agg in out[family].items():
+            if base and base["overall_cost"] > 0:
+                agg["oc_change_vs_mpc"] = round(agg["overall_cost"] / base["overall_cost"] - 1, 4)
+    return out
+
+
+def table_md(summary: dict[str, dict[str, dict[str, Any]]]) -> str:
+    lines = ["| Scenario | Method | Coll. | Fail | Ineff | Time | Acc | Dist | O.C. | vs MPC |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for family, methods in summary.items():
+        for method, a in methods.items():
+            change = a.get("oc_change_vs_mpc")
+            lines.append(
+                f"| {family.upper()} | {method} | {a['collisions']} | {a['fails']} | "
+                f"{a['ineff']:.1f} | {a['time_s']:.1f} | {a['pen_acc']:.2f} | "
+                f"{a['pen_dist']:.2f} | {a['overall_cost']:.1f} | "
+                f"{'' if change is None or method == 'mpc' else f'{change:+.1%}'} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--families", default="usi", help="comma-separated families")
+    ap.add_argument("--seeds", type=parse_seeds, default=parse_seeds("0-24"))
+    ap.add_argument("--methods", default="mpc,lmpc-rules")
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--out", type=Path, default=Path("runs/bench"))
+    args = ap.parse_args(argv)
+    families = [f.strip() for f in args.families.split(",") if f.strip()]
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        ap.error(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    work_dir = tempfile.mkdtemp(prefix="lmpc-bench-")
+    jobs = [(m, f, s) for f in families for s in args.seeds for m in methods]
+    rows: list[dict[str, Any]] = []
+    t0 = time.monotonic()
+    with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
+        futures = {pool.submit(run_scene, m, f, s, work_dir): (m, f, s) for m, f, s in jobs}
+        for fut in as_completed(futures):
+            m, f, s = futures[fut]
+            try:
+                row = fut.result()
+            except Exception as exc:  # noqa: BLE001 - one broken scene must not end the run
+                row = {c: math.nan for c in COLUMNS}
+                row.update(family=f, seed=s, method=m, outcome="error", collision=0, fail=1,
+                           detail=f"{type(exc).__name__}: {exc}")
+            rows.append(row)
+            done = len(rows)
+            elapsed = time.monotonic() - t0
+            eta = elapsed / done * (len(jobs) - done)
+            print(f"[{done}/{len(jobs)}] {f} seed {s} {m}: {row['outcome']} "
+                  f"t={row['time_s']}s O.C.={row['overall_cost']} ({row['wall_s']}s wall) "
+                  f"elapsed {elapsed:.0f}s ETA {eta:.0f}s", flush=True)
+    rows.sort(key=lambda r: (r["family"], r["method"], r["seed"]))
+    with open(args.out / "results.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+    summary = aggregate(rows)
+    (args.out / "summary.json").write_text(json.dumps(
+        {"families": summary, "wall_time_s": round(time.monotonic() - t0, 1),
+         "workers": args.workers, "seeds": args.seeds}, indent=2))
+    table = table_md(summary)
+    (args.out / "table.md").write_text(table)
+    print(table)
+    print(f"wrote {args.out}/results.csv, table.md, summary.json "
+          f"in {time.monotonic() - t0:.0f}s", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
