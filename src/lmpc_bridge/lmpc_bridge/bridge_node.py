@@ -260,12 +260,32 @@ class BridgeNode(LmpcNode):
         else:
             self._publish_step()
 
+    def _planner_gone(self) -> bool:
+        """The planner took part but left the graph (DDS dropped its publisher)."""
+        gone = self.count_publishers(self.topic(topics.PLANNER_STATUS)) < 1
+        if gone:
+            self.log_event("planner-gone", "the planner left the graph: stepping without waiting "
+                           "for it (the MPC falls back to baseline when its decision expires)")
+        return gone
+
+    def _controller_gone(self) -> bool:
+        gone = self.count_publishers(self.topic(topics.CONTROL)) < 1
+        if gone:
+            self.log_event("mpc-gone", "no publisher on the control topic: the ego brakes at a "
+                           "bounded deceleration each step, the simulation goes on")
+        return gone
+
+    def _planner_done(self) -> bool:
+        if not self.cfg.wait_for_planner or self.planner_stamp_s >= self.sim.time_s - 1e-6:
+            return True
+        return self._planner_gone()
+
     def _try_sync_step(self) -> None:
         if not self.started or self.finished:
             return
         if self._control_for_current_step() is None:
             return
-        if self.cfg.wait_for_planner and self.planner_stamp_s < self.sim.time_s - 1e-6:
+        if not self._planner_done():
             return
         self._advance(self._control_for_current_step())
 
@@ -287,16 +307,23 @@ class BridgeNode(LmpcNode):
             return
         waited = now - self.waiting_since
         have_control = self._control_for_current_step() is not None
-        if not have_control and waited > self.cfg.control_timeout_s:
+        if have_control:
+            if self._planner_done():  # it may have left the graph meanwhile
+                self._advance(self._control_for_current_step())
+            elif waited > self.cfg.planner_timeout_s:
+                self.log_event(
+                    "late-planner", f"planner status for t={self.sim.time_s:.1f}s missing "
+                    f"after {self.cfg.planner_timeout_s:.0f}s wall: stepping on")
+                self._advance(self._control_for_current_step())
+            return
+        if self.sim.step_index > 0 and self._controller_gone():
+            self._advance(None)
+        elif waited > self.cfg.control_timeout_s:
             if self.sim.step_index == 0:
                 # Discovery may still be settling: offer step 0 again rather than count it late.
                 self._publish_step()
                 return
             self._advance(None)
-        elif have_control and self.cfg.wait_for_planner and waited > self.cfg.planner_timeout_s:
-            self.log_event("late-planner", f"planner status for t={self.sim.time_s:.1f}s "
-                           f"missing after {self.cfg.planner_timeout_s:.0f}s wall: stepping on")
-            self._advance(self._control_for_current_step())
 
     def _realtime_tick(self) -> None:
         if self.finished:

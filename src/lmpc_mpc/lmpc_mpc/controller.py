@@ -42,6 +42,9 @@ _STOP_MARGIN_M = 1.0
 _COMFORT_DECEL_MPS2 = 3.0
 """A yellow light is run through when stopping would need more than this."""
 _DECISION_MEMORY = 8
+_COMMIT_HOLD_S = 6.0
+"""Once the ego commits to pass ahead of a crossing agent, it keeps that commitment this
+long (sim time) while the agent stays a conflict, so it does not stop half-way."""
 
 
 @dataclass(frozen=True)
@@ -76,6 +79,9 @@ class MpcController:
                         "brakes": 0, "stale_inputs": 0}
         self._mode = "idle"
         self._ego_v_mps = 0.0
+        self._now_s = 0.0
+        self._committed: dict[str, float] = {}
+        """Crossing agents the ego decided to pass ahead of -> sim time of the decision."""
         self.reference_path: Optional[np.ndarray] = None
         """(M, 2) the reference path of the last step (for the visual mirror)."""
         self.reference_states: Optional[np.ndarray] = None
@@ -113,6 +119,7 @@ class MpcController:
         self._u_prev = self._u_prev2 = None
         self._plan = self._plan_pred = None
         self._plan_age = 0
+        self._committed.clear()
         self.solver.reset()
 
     # -- control -------------------------------------------------------------------------
@@ -222,6 +229,7 @@ class MpcController:
             obstacles.append(Obstacle(ag.id, fc.xy_m, ag.length_m, ag.width_m))
         line = _Polyline.of(path)
         self._ego_v_mps = ego.v_mps
+        self._now_s = ego.stamp_s
         s_limit = self._lead_limits(line, obstacles, [a.v_mps for a in agents[:slots]])
         ref = timed_reference(path, v0_mps=ego.v_mps, v_max_mps=min(v_limit, ref_v_cap),
                               a_max_mps2=ref_acc, a_dec_mps2=ref_dec,
@@ -259,6 +267,7 @@ class MpcController:
         s_all, d_all = line.project_many(np.concatenate([ob.xy_m for ob in obstacles]))
         s_all = s_all.reshape(len(obstacles), n + 1)
         d_all = d_all.reshape(len(obstacles), n + 1)
+        crossing: list[tuple[str, float, float, int]] = []
         for i, (ob, v) in enumerate(zip(obstacles, speeds_mps)):
             lat_clear = 0.5 * (veh.width_m + ob.width_m) + cfg.safety_lateral_gap_m
             gap = cfg.safety_gap_m + 0.5 * (veh.length_m + ob.length_m)
@@ -270,12 +279,30 @@ class MpcController:
                 # a vehicle ahead going our way: follow it at gap + headway
                 limit[on] = np.minimum(limit[on], s_k[on] - gap - cfg.safety_headway_s * v)
                 continue
-            # crossing or oncoming: stay out of the conflict zone until it has left
-            # (plus one headway), unless we are too close to stop comfortably
-            s_enter = float(np.min(s_k[on])) - gap
-            if s_enter < self._ego_v_mps ** 2 / (2.0 * _COMFORT_DECEL_MPS2):
-                continue
+            # crossing or oncoming: its zone on our path and the last step it is there
             k_last = min(n, int(np.max(np.nonzero(on)[0])) + hold_steps)
+            crossing.append((ob.obstacle_id, float(np.min(s_k[on])) - gap,
+                             float(np.max(s_k[on])) + gap, k_last))
+        comfort_m = self._ego_v_mps ** 2 / (2.0 * _COMFORT_DECEL_MPS2)
+        for oid, s_enter, _, k_last in crossing:
+            # never plan to stop inside another crossing agent's zone (blocking the
+            # junction): stop before that zone instead (our rule, see docs)
+            moved = True
+            while moved:
+                moved = False
+                for other, lo, hi, _ in crossing:
+                    if other != oid and lo < s_enter < hi:
+                        s_enter, moved = lo, True
+            since = self._committed.get(oid)
+            if since is not None and 0.0 <= self._now_s - since <= _COMMIT_HOLD_S:
+                # committed earlier: as the ego slows, the comfortable stopping distance
+                # shrinks below s_enter; yielding then would stop it half-way, so hold on
+                continue
+            if s_enter < comfort_m:
+                # too close to stop comfortably: commit (pass ahead of it)
+                self._committed[oid] = self._now_s
+                continue
+            # stay out of the conflict zone until it has left (plus one headway)
             limit[: k_last + 1] = np.minimum(limit[: k_last + 1], s_enter)
         return None if not np.any(np.isfinite(limit)) else limit
 
