@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -22,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Optional, Sequence
 
+SCRIPTS = Path(__file__).resolve().parent
 EXIT_CODES = {"reached": 0, "collision": 1, "timeout": 2, "error": 3}
 
 # Each node module and how its process is called in logs.
@@ -64,12 +66,16 @@ class Graph:
         self.children: list[Child] = []
         self._print_lock = threading.Lock()
 
-    def start(self, name: str, module: str, params: dict[str, object],
-              cpus: Optional[set[int]] = None) -> Child:
+    def start_node(self, name: str, module: str, params: dict[str, object],
+                   cpus: Optional[set[int]] = None) -> Child:
+        """Start ``python -m module`` with ROS parameters."""
         args = [sys.executable, "-m", module, "--ros-args"]
         for key, value in params.items():
             text = str(value).lower() if isinstance(value, bool) else str(value)
             args += ["-p", f"{key}:={text}"]
+        return self.start(name, args, cpus)
+
+    def start(self, name: str, args: list[str], cpus: Optional[set[int]] = None) -> Child:
         log_file = open(self.run_dir / f"{name}.log", "w", encoding="utf-8")
         proc = subprocess.Popen(
             args, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
@@ -115,6 +121,15 @@ class Graph:
             child.log_file.close()
 
 
+def _wait_for_log(child: Child, needle: str, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and child.proc.poll() is None:
+        if any(needle in line for line in child.lines):
+            return
+        time.sleep(0.05)
+    raise RuntimeError(f"{child.name} did not report {needle!r} within {timeout_s:.0f}s")
+
+
 def _signal_group(proc: subprocess.Popen[str], sig: int) -> None:
     try:
         os.killpg(proc.pid, sig)
@@ -139,6 +154,8 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     ap.add_argument("--max-time-s", type=float, default=200.0, help="episode limit, sim seconds")
     ap.add_argument("--wall-timeout-s", type=float, default=900.0,
                     help="stop everything after this many wall seconds")
+    ap.add_argument("--record", action="store_true",
+                    help="record every topic to <run-dir>/bag (rosbag2, MCAP storage)")
     ap.add_argument("--quiet", action="store_true", help="do not echo node logs")
     args = ap.parse_args(argv)
     if args.planner == "mock" and args.mock_script is None:
@@ -176,20 +193,30 @@ def run(args: argparse.Namespace) -> dict[str, object]:
     split = len(cpus) >= 2
     t0 = time.monotonic()
     interrupted = False
+    if args.record:
+        bag = run_dir / "bag"
+        if bag.exists():
+            shutil.rmtree(bag)
+        recorder = graph.start("recorder", [sys.executable, str(SCRIPTS / "record.py"),
+                                            "--out", str(bag)])
+        _wait_for_log(recorder, "recording to", timeout_s=30.0)
     for name, p in params.items():
         cpu_set = None
         if split and name in ("planner", "mock_llm"):
             cpu_set = {cpus[-1]}
         elif split and name == "mpc":
             cpu_set = set(cpus[:-1])
-        graph.start(name, NODE_MODULES[name], p, cpus=cpu_set)
-    bridge = graph.children[0]
+        graph.start_node(name, NODE_MODULES[name], p, cpus=cpu_set)
+    bridge = next(c for c in graph.children if c.name == "bridge")
+    nodes = [c for c in graph.children if c.name != "recorder"]
     crashed: list[str] = []
     try:
         while True:
             if bridge.proc.poll() is not None:
                 break
-            for child in graph.children[1:]:
+            for child in nodes:
+                if child is bridge:
+                    continue
                 if child.proc.poll() is not None and child.name not in crashed:
                     crashed.append(child.name)
             if crashed:
@@ -212,7 +239,7 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
     episode = json.loads(episode_path.read_text()) if episode_path.exists() else {}
     outcome = episode.get("outcome", "error")
     detail = episode.get("detail", "")
-    bridge = graph.children[0]
+    bridge = next(c for c in graph.children if c.name == "bridge")
     if crashed or interrupted or bridge.proc.returncode not in (0, None) or not episode:
         outcome = "error"
         reasons = [f"node {c} stopped early" for c in crashed if c != "wall-timeout"]
@@ -245,6 +272,7 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
         "nodes": {c.name: {"exit_code": c.proc.returncode, "tracebacks": c.tracebacks}
                   for c in graph.children},
         "run_dir": str(run_dir),
+        "bag": str(run_dir / "bag") if args.record else None,
     }
     text = json.dumps(summary, indent=2)
     (run_dir / "summary.json").write_text(text)

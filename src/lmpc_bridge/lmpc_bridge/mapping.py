@@ -56,16 +56,50 @@ def _read_net(net_file: str) -> Any:
     return sumolib.net.readNet(net_file, withInternal=True)
 
 
+def _allows_ego(lane: Any) -> bool:
+    return bool(lane.allows("passenger"))
+
+
 def _route_lanes(net: Any, scene: Scene) -> list[str]:
+    """The ego route as lanes: on every route edge the lane the ego should be on.
+
+    Generic (any junction shape, any number of lanes): working backwards from the
+    target lanes, keep on each route edge the lanes (open to passenger cars) that
+    connect to a kept lane of the next edge. The first lane is the ego's depart
+    lane if it can reach the target, else the nearest (by index) lane that can:
+    the difference is a lane change the ego has to make on the first edge
+    (``lane`` / ``construction`` families). Then walk forward, preferring the
+    connection that keeps the lane index, following internal lanes.
+    """
     edges = scene.ego_route_edges
-    lane = net.getEdge(edges[0]).getLanes()[scene.ego_depart_lane]
+    targets = {lid for lid in scene.target.lane_ids if net.getLane(lid).getEdge().getID()
+               == edges[-1]}
+    if not targets:
+        targets = {lane.getID() for lane in net.getEdge(edges[-1]).getLanes() if _allows_ego(lane)}
+    good: list[set[str]] = [set() for _ in edges]
+    good[-1] = targets
+    for i in range(len(edges) - 2, -1, -1):
+        good[i] = {lane.getID() for lane in net.getEdge(edges[i]).getLanes()
+                   if _allows_ego(lane) and any(c.getToLane().getID() in good[i + 1]
+                                                for c in lane.getOutgoing())}
+        if not good[i]:
+            raise SceneError(f"route of scene {scene.family}/{scene.seed}: no lane of edge "
+                             f"{edges[i]} leads to the target lanes {sorted(targets)}")
+    first_lanes = net.getEdge(edges[0]).getLanes()
+    depart = first_lanes[scene.ego_depart_lane]
+    if depart.getID() in good[0]:
+        lane = depart
+    else:
+        lane = min((ln for ln in first_lanes if ln.getID() in good[0]),
+                   key=lambda ln: abs(ln.getIndex() - depart.getIndex()))
     lanes = [lane.getID()]
-    for next_edge in edges[1:]:
-        conns = [c for c in lane.getOutgoing() if c.getToLane().getEdge().getID() == next_edge]
+    for i, next_edge in enumerate(edges[1:], start=1):
+        conns = [c for c in lane.getOutgoing() if c.getToLane().getID() in good[i]]
         if not conns:
             raise SceneError(f"route of scene {scene.family}/{scene.seed}: lane {lane.getID()} "
                              f"has no connection to edge {next_edge}")
-        conn = min(conns, key=lambda c: c.getToLane().getIndex())
+        conn = min(conns, key=lambda c: (abs(c.getToLane().getIndex() - lane.getIndex()),
+                                         c.getToLane().getIndex()))
         via = conn.getViaLaneID()
         while via:  # follow the chain of internal lanes (split at internal junctions)
             lanes.append(via)

@@ -329,12 +329,16 @@ class SumoSim:
             return ()
         links = []
         route = self._route
+        route_edges = set() if route is None else {
+            lane_id.rsplit("_", 1)[0] for lane_id in route.lane_ids}
         for tls_id, link_index, distance, state in upcoming:
             from_lane = to_lane = None
             for lane in self.map.lanes:
                 for succ in lane.successors:
+                    # SUMO reports the link of the lane the ego is on, which may be a
+                    # parallel lane of a route edge (before a lane change): match edges.
                     if succ.tls_id == tls_id and succ.link_index == link_index and (
-                            route is None or lane.id in route.lane_ids):
+                            route is None or lane.edge_id in route_edges):
                         from_lane, to_lane = lane.id, succ.to_lane
             if from_lane is None or to_lane is None:
                 continue

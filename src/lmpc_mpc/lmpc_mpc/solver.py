@@ -46,6 +46,8 @@ _EPS_D2 = 1e-2
 _RELEVANCE_MARGIN_M = 6.0
 """An obstacle farther than this beyond ``d_hat`` from every guess of the ego at a stage
 is left out of that stage (its safety term is zero there; see ``MpcSolver._pack``)."""
+_GUESS = __import__("os").environ.get("V_GUESS", "shifted")
+_CONVEXIFY = __import__("os").environ.get("V_CVX", "none")
 _RELEVANCE_SPEED_MPS = 3.0
 """Speed added to the guesses' speed when judging relevance (``d_hat`` grows with v)."""
 _TOL = 1e-3
@@ -281,6 +283,7 @@ class MpcSolver:
                 "ng": [NX + 1] + [1] * (n - 1) + [0],
                 "equality": equality,
                 "expand": True,
+                **({"convexify_strategy": _CONVEXIFY} if _CONVEXIFY != "none" else {}),
                 "fatrop": {"print_level": 0, "max_iter": self.config.max_iterations,
                            "tol": _TOL, "mu_init": _MU_INIT},
                 "print_time": False,
@@ -475,6 +478,28 @@ class MpcSolver:
             raise MpcInputError("MPC problem contains NaN or infinite numbers")
         return p, x0, n_slots
 
+    def _reference_guess(self, x0: np.ndarray, prob: MpcProblem) -> np.ndarray:
+        """Initial guess on the time-parameterised reference: its states, the
+        accelerations of its speed profile and the steer of its curvature."""
+        n, veh = self.n, self.vehicle
+        ref = np.asarray(prob.reference, dtype=float)
+        kap = np.asarray(prob.reference_curvature_1pm, dtype=float)
+        us = np.empty((n, NU))
+        us[:, 0] = np.clip(np.diff(ref[:, 3]) / self.dt_s, -veh.max_decel_mps2,
+                           veh.max_accel_mps2)
+        us[:, 1] = np.clip(np.arctan(veh.wheelbase_m * kap[1:]), -veh.max_steer_rad,
+                           veh.max_steer_rad)
+        xs = np.empty((n + 1, NX))
+        xs[:, :4] = ref
+        xs[:, 2] = np.unwrap(np.concatenate([[x0[2]], ref[:, 2]]))[1:]
+        xs[0] = x0
+        xs[1:, 4:6] = us
+        xs[1:, 6:8] = np.vstack([x0[4:6], us[:-1]])
+        guess = np.empty((n + 1, NX + NU))
+        guess[:, :NX] = xs
+        guess[:n, NX:] = us
+        return guess.ravel()[: (n + 1) * NX + n * NU]
+
     def _initial_guess(self, x0: np.ndarray, n_slots: int) -> np.ndarray:
         n = self.n
         if self._warm is not None and self._warm_slots is not None:
@@ -510,7 +535,8 @@ class MpcSolver:
         except MpcInputError as exc:
             return self._fail(f"bad input: {exc}", t0, 0)
         comp = self.compiled(n_slots)
-        w0 = self._initial_guess(x0, n_slots)
+        w0 = (self._reference_guess(x0, problem) if _GUESS == "reference"
+              else self._initial_guess(x0, n_slots))
         try:
             sol = comp.solver(x0=w0, p=p, lbx=comp.lbx, ubx=comp.ubx, lbg=comp.lbg,
                               ubg=comp.ubg)

@@ -1,0 +1,110 @@
+#!/usr/bin/env python3
+"""Record the graph's topics to a rosbag2 file (MCAP storage) with the `rosbags` library.
+
+Subscribes to the known LanguageMPC topics at once (so nothing of step 0 is
+lost to discovery) and to any other topic that appears under ``/lmpc``; takes
+the serialized CDR bytes as they come (``raw=True``), so the bag holds exactly
+what went over DDS. ``ros2 bag info/play`` and Foxglove read the result.
+
+    record.py --out runs/usi-0/bag          (stop with Ctrl-C / SIGINT: the bag is closed cleanly)
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+import rclpy  # noqa: E402
+from rclpy.executors import ExternalShutdownException  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rosbags.rosbag2 import StoragePlugin, Writer  # noqa: E402
+from rosbags.typesys import Stores, get_typestore  # noqa: E402
+
+from lmpc_msgs_py import qos as lmpc_qos  # noqa: E402
+from lmpc_msgs_py import topics  # noqa: E402
+
+STRING = "std_msgs/msg/String"
+KNOWN_TOPICS: dict[str, str] = {
+    topics.CLOCK: "rosgraph_msgs/msg/Clock",
+    topics.DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
+    **{topics.topic(name): STRING for name in (
+        topics.MAP, topics.EGO_STATE, topics.AGENTS, topics.SIGNALS, topics.EPISODE,
+        topics.DECISION, topics.CONTROL, topics.INSTRUCTION, topics.PLANNER_STATUS)},
+    topics.topic(topics.EGO_ODOM): "nav_msgs/msg/Odometry",
+    topics.topic(topics.REFERENCE_PATH): "nav_msgs/msg/Path",
+    topics.topic(topics.PREDICTED_PATH): "nav_msgs/msg/Path",
+}
+LATCHED_TOPICS = {topics.topic(topics.MAP), topics.topic(topics.EPISODE)}
+
+
+def message_class(type_name: str) -> type:
+    import importlib
+
+    pkg, _, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+
+class Recorder(Node):
+    def __init__(self, out: Path) -> None:
+        super().__init__("lmpc_recorder")
+        self.typestore = get_typestore(Stores.ROS2_JAZZY)
+        self.writer = Writer(out, storage_plugin=StoragePlugin.MCAP)
+        self.writer.open()
+        self.connections: dict[str, Any] = {}
+        self.counts: dict[str, int] = {}
+        for name, type_name in KNOWN_TOPICS.items():
+            self._subscribe(name, type_name)
+        self.create_timer(0.5, self._discover)
+        self.get_logger().info(f"recording to {out}")
+
+    def _subscribe(self, name: str, type_name: str) -> None:
+        if name in self.connections or type_name not in self.typestore.types:
+            return
+        qos = lmpc_qos.LATCHED if name in LATCHED_TOPICS else lmpc_qos.STREAM
+        self.connections[name] = self.writer.add_connection(
+            name, type_name, typestore=self.typestore)
+        self.counts[name] = 0
+
+        def on_raw(data: bytes, topic: str = name) -> None:
+            self.writer.write(self.connections[topic], time.time_ns(), data)
+            self.counts[topic] += 1
+
+        self.create_subscription(message_class(type_name), name, on_raw, qos, raw=True)
+
+    def _discover(self) -> None:
+        for name, types in self.get_topic_names_and_types():
+            if name.startswith(topics.ROOT) and types:
+                self._subscribe(name, types[0])
+
+    def close(self) -> None:
+        self.writer.close()
+        total = sum(self.counts.values())
+        self.get_logger().info(f"bag closed: {total} messages on {len(self.counts)} topics")
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--out", type=Path, required=True, help="bag folder (must not exist)")
+    args, ros_args = ap.parse_known_args(argv)
+    rclpy.init(args=ros_args)
+    node: Optional[Recorder] = None
+    try:
+        node = Recorder(args.out)
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

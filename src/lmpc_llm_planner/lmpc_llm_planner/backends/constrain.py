@@ -1,0 +1,103 @@
+"""The decision schema narrowed to one request, for backends that constrain their output.
+
+``schema.decision_json_schema`` is the same for every request: ids are any string,
+indices any integer up to the configured maxima. A grammar (llama.cpp) or a
+structured-output server (vLLM, llama.cpp server) built from it can still answer an
+agent id that was not offered or an index past the offered candidates, which
+validation then refuses. :func:`narrow_schema` closes those holes for one request:
+
+- ``ego_trajectory``: an ``enum`` of the offered ego candidates that follow a lane;
+- ``attention``: items from the offered agent ids (at most that many items);
+- ``agent_trajectories``: optional properties, one per offered agent, each an
+  ``enum`` of that agent's candidate indices (no other keys);
+- ``accel_interval`` / ``steer_interval``: an ``enum`` of the configured indices;
+- ``reasoning``: ``maxLength`` capped (a small model otherwise never closes it).
+
+Integer ranges are written as ``enum`` because every JSON-schema-to-grammar converter
+supports it (``minimum`` / ``maximum`` are not everywhere). The answer is still
+validated by ``validation.parse_decision``: narrowing only makes a valid answer likely.
+"""
+from __future__ import annotations
+
+import copy
+from typing import Any, Mapping, Optional
+
+from lmpc_llm_planner.backends.base import DecisionRequest
+
+REASONING_FIELD = "reasoning"
+
+
+def _int_enum(n: int) -> dict[str, Any]:
+    return {"type": "integer", "enum": list(range(max(n, 0)))}
+
+
+def _find_def(schema: Mapping[str, Any], title: str) -> Optional[dict[str, Any]]:
+    """The object schema titled ``title``: a ``$defs`` entry or the root itself."""
+    if schema.get("title") == title:
+        return schema  # type: ignore[return-value]
+    for sub in (schema.get("$defs") or {}).values():
+        if isinstance(sub, dict) and sub.get("title") == title:
+            return sub
+    return None
+
+
+def _narrow_encoding(enc: dict[str, Any], request: DecisionRequest) -> None:
+    props = enc.get("properties")
+    if not isinstance(props, dict):
+        return
+    scene = request.scene
+    ego_ok = [i for i, c in enumerate(scene.ego_candidates) if c.lane_ids]
+    props["ego_trajectory"] = {"type": "integer", "enum": ego_ok or [scene.route_candidate_id]}
+    ids = list(scene.agent_ids)
+    if ids:
+        props["attention"] = {
+            "type": "array", "items": {"type": "string", "enum": ids}, "maxItems": len(ids),
+        }
+    else:
+        # Nothing offered: the only valid attention list is the empty one.
+        props["attention"] = {"type": "array", "items": {"type": "string"}, "maxItems": 0}
+    props["agent_trajectories"] = {
+        "type": "object",
+        "properties": {v.id: _int_enum(len(v.candidates)) for v in scene.agents},
+        "additionalProperties": False,
+    }
+
+
+def _narrow_guidance(guide: dict[str, Any], request: DecisionRequest) -> None:
+    props = guide.get("properties")
+    if not isinstance(props, dict):
+        return
+    props["accel_interval"] = _int_enum(len(request.accel_intervals_mps2))
+    props["steer_interval"] = _int_enum(len(request.steer_intervals_rad))
+
+
+def narrow_schema(request: DecisionRequest, *, max_reasoning_chars: int) -> dict[str, Any]:
+    """``request.json_schema`` narrowed to what ``request`` offers (see the module doc).
+
+    Never raises on an unexpected schema shape: the parts it does not recognise are
+    left as they are (the answer is validated anyway).
+    """
+    schema: dict[str, Any] = copy.deepcopy(dict(request.json_schema))
+    root_props = schema.get("properties")
+    if isinstance(root_props, dict) and isinstance(root_props.get(REASONING_FIELD), dict):
+        reasoning = root_props[REASONING_FIELD]
+        reasoning["maxLength"] = min(
+            int(reasoning.get("maxLength", max_reasoning_chars)), max_reasoning_chars
+        )
+    enc = _find_def(schema, "ScenarioEncoding")
+    if enc is not None:
+        _narrow_encoding(enc, request)
+    guide = _find_def(schema, "ActionGuidance")
+    if guide is not None:
+        _narrow_guidance(guide, request)
+    return schema
+
+
+SYSTEM_PROMPT = (
+    "You are the high-level decision maker of an autonomous car; a model-predictive "
+    "controller drives it from your decision. Read the scene in the user message and "
+    "answer with exactly one JSON object matching the JSON schema given there: fields in "
+    "the given order, \"reasoning\" first and short, no Markdown, no code fences, no text "
+    "before or after the object. Use only the agent ids and the indices the message offers."
+)
+"""System message of the chat backends: the role and the output format."""

@@ -1,0 +1,341 @@
+"""The ``openai`` backend: any OpenAI-compatible chat-completions endpoint.
+
+Works with OpenAI, vLLM, Ollama (``/v1``) and the llama.cpp server. It speaks plain
+HTTP through the standard library (``http.client``), on purpose not through the
+``openai`` package: a pinned client that breaks on upgrade is a known failure of
+earlier LanguageMPC code, and the protocol used here is one POST.
+
+- Deadline: the whole call (connect, send, every read) must finish within
+  ``request.deadline_s`` of wall time (the planner's deadline, default 8 s); each
+  socket operation gets the time that is left, so the client's own default (600 s in
+  the ``openai`` package) never applies. Past the deadline -> ``error_kind="timeout"``.
+- Structured output: ``response_format`` json_schema (the schema narrowed to the
+  request, ``constrain.narrow_schema``); a server that answers HTTP 400 / 422 to it is
+  asked again at once with ``json_object``, then with no format. The first format that
+  works is remembered for this backend instance.
+- Tokens in / out from the reply's ``usage`` when present (else 0: the planner then
+  uses its estimate).
+- The API key: read once from the environment, sent only in the ``Authorization``
+  header, never logged, never in an error message (server text is redacted), never in
+  ``repr``. Over plain http it is sent only to a loopback host unless
+  ``allow_plain_http_key`` is set.
+
+Not supported: HTTP proxies (``HTTPS_PROXY``), streaming, tool calls.
+"""
+from __future__ import annotations
+
+import http.client
+import ipaddress
+import json
+import logging
+import os
+import re
+import socket
+import ssl
+import threading
+import time
+import urllib.parse
+from dataclasses import dataclass
+from typing import Any, Literal, Mapping, Optional
+
+from lmpc_llm_planner.backends.base import BackendError, BackendReply, DecisionRequest
+from lmpc_llm_planner.backends.constrain import SYSTEM_PROMPT, narrow_schema
+from lmpc_llm_planner.config import OpenAIConfig
+
+LOG = logging.getLogger(__name__)
+
+ENV_BASE_URL = "LMPC_OPENAI_BASE_URL"
+ENV_MODEL = "LMPC_OPENAI_MODEL"
+ENV_KEY_FALLBACK = "OPENAI_API_KEY"
+FORMAT_ORDER: tuple[str, ...] = ("json_schema", "json_object", "none")
+STEP_DOWN_STATUSES = (400, 422)
+"""Answers to a request the server does not accept (e.g. an unsupported response_format)."""
+MAX_BODY_BYTES = 4_000_000
+"""A reply body larger than this is refused (a decision is a few kB)."""
+MAX_ERROR_EXCERPT = 300
+SCHEMA_NAME = "lmpc_decision"
+SOURCE_PATTERN = re.compile(r"[^\w.:/\-]")
+
+ResponseFormat = Literal["json_schema", "json_object", "none"]
+
+
+class _Deadline(Exception):
+    """The call ran past the request's deadline."""
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """Where requests go (no secret in here: safe to log)."""
+
+    scheme: str
+    host: str
+    port: int
+    path: str
+    """Path of ``.../chat/completions``."""
+
+    @property
+    def url(self) -> str:
+        return f"{self.scheme}://{self.host}:{self.port}{self.path}"
+
+    @property
+    def loopback(self) -> bool:
+        if self.host == "localhost":
+            return True
+        try:
+            return ipaddress.ip_address(self.host).is_loopback
+        except ValueError:
+            return False
+
+
+def parse_endpoint(base_url: str) -> Endpoint:
+    """``base_url`` (e.g. ``http://127.0.0.1:8000/v1``) -> the chat-completions endpoint.
+
+    Raises :class:`BackendError` for a URL that is not http(s) with a host.
+    """
+    parts = urllib.parse.urlsplit(base_url.strip())
+    if parts.scheme not in ("http", "https") or not parts.hostname:
+        raise BackendError(
+            f"openai backend: base URL {base_url!r} must be http(s)://host[:port]/path "
+            f"(set openai.base_url or {ENV_BASE_URL})"
+        )
+    if parts.username or parts.password:
+        raise BackendError(
+            "openai backend: the base URL must not carry credentials; put the key in "
+            f"the environment ({ENV_KEY_FALLBACK} or openai.api_key_env)"
+        )
+    try:
+        port = parts.port or (443 if parts.scheme == "https" else 80)
+    except ValueError:
+        raise BackendError(f"openai backend: base URL {base_url!r} has a bad port") from None
+    path = parts.path.rstrip("/")
+    if not path.endswith("/chat/completions"):
+        path += "/chat/completions"
+    return Endpoint(scheme=parts.scheme, host=parts.hostname, port=port, path=path)
+
+
+def source_name(model: str) -> str:
+    """Decision source ``llm:<model>`` (characters the message schema refuses -> ``-``)."""
+    return "llm:" + SOURCE_PATTERN.sub("-", model)[:96]
+
+
+def response_format_field(
+    fmt: ResponseFormat, schema: Mapping[str, Any], *, strict: bool
+) -> Optional[dict[str, Any]]:
+    """The request's ``response_format`` for ``fmt`` (None = leave it out)."""
+    if fmt == "json_schema":
+        return {
+            "type": "json_schema",
+            "json_schema": {"name": SCHEMA_NAME, "schema": dict(schema), "strict": strict},
+        }
+    if fmt == "json_object":
+        return {"type": "json_object"}
+    return None
+
+
+class OpenAIBackend:
+    """Chat-completions client; see the module docstring. Thread-safe."""
+
+    def __init__(
+        self,
+        config: OpenAIConfig,
+        *,
+        api_key: Optional[str] = None,
+        base_url: Optional[str] = None,
+        model: Optional[str] = None,
+    ) -> None:
+        self.config = config
+        self.model = model or config.model
+        self.endpoint = parse_endpoint(base_url or config.base_url)
+        self.name = source_name(self.model)
+        self._api_key = api_key or None
+        if self._api_key and self.endpoint.scheme == "http" and not self.endpoint.loopback \
+                and not config.allow_plain_http_key:
+            raise BackendError(
+                f"openai backend: refusing to send the API key in clear text to "
+                f"{self.endpoint.host}; use https, or set openai.allow_plain_http_key"
+            )
+        self._format: ResponseFormat = config.response_format
+        self._lock = threading.Lock()
+        self._ssl = ssl.create_default_context() if self.endpoint.scheme == "https" else None
+
+    @classmethod
+    def from_env(
+        cls, config: OpenAIConfig, environ: Optional[Mapping[str, str]] = None
+    ) -> "OpenAIBackend":
+        """Build from ``config`` with the environment's overrides and key."""
+        env = os.environ if environ is None else environ
+        key = env.get(config.api_key_env) or env.get(ENV_KEY_FALLBACK) or None
+        return cls(
+            config, api_key=key, base_url=env.get(ENV_BASE_URL) or None,
+            model=env.get(ENV_MODEL) or None,
+        )
+
+    def __repr__(self) -> str:  # the key stays out of any printed form
+        key = "set" if self._api_key else "none"
+        return f"OpenAIBackend(url={self.endpoint.url!r}, model={self.model!r}, key={key})"
+
+    @property
+    def response_format(self) -> ResponseFormat:
+        """The structured-output format requests use now (after any step-down)."""
+        return self._format
+
+    # -- Backend ---------------------------------------------------------------------------
+    def complete(self, request: DecisionRequest) -> BackendReply:
+        """One chat completion under ``request.deadline_s``; never raises."""
+        t0 = time.perf_counter()
+        t_end = t0 + request.deadline_s
+        schema = (
+            narrow_schema(request, max_reasoning_chars=self.config.max_reasoning_chars)
+            if self.config.narrow_schema else dict(request.json_schema)
+        )
+        with self._lock:
+            fmt = self._format
+        formats = FORMAT_ORDER[FORMAT_ORDER.index(fmt):]
+        refusals: list[str] = []
+        try:
+            for fmt in formats:
+                status, body = self._post(self._payload(request, fmt, schema), t_end)
+                if status in STEP_DOWN_STATUSES and fmt != formats[-1]:
+                    refusals.append(f"{fmt}: HTTP {status} {self._excerpt(body)}")
+                    continue
+                if status != 200:
+                    return self._fail(t0, "transport", "; ".join(
+                        refusals + [f"HTTP {status} from {self.endpoint.url}: "
+                                    f"{self._excerpt(body)}"]))
+                if fmt != self._format:
+                    self._step_down(fmt, refusals)
+                return self._reply(body, t0)
+        except _Deadline:
+            return self._fail(t0, "timeout", f"no complete reply from {self.endpoint.url} "
+                                             f"within the {request.deadline_s:.1f} s deadline")
+        except socket.timeout:
+            return self._fail(t0, "timeout", f"no complete reply from {self.endpoint.url} "
+                                             f"within the {request.deadline_s:.1f} s deadline")
+        except (OSError, http.client.HTTPException) as exc:
+            return self._fail(t0, "transport",
+                              f"{type(exc).__name__} talking to {self.endpoint.url}: "
+                              f"{self._redact(str(exc))}")
+        return self._fail(t0, "transport", "no response format left to try")  # unreachable
+
+    # -- internals -------------------------------------------------------------------------
+    def _payload(self, request: DecisionRequest, fmt: ResponseFormat,
+                 schema: Mapping[str, Any]) -> dict[str, Any]:
+        payload: dict[str, Any] = {
+            "model": self.model,
+            "messages": [
+                {"role": "system", "content": SYSTEM_PROMPT},
+                {"role": "user", "content": request.prompt},
+            ],
+            "temperature": self.config.temperature,
+            "stream": False,
+        }
+        if self.config.max_output_tokens is not None:
+            payload["max_tokens"] = self.config.max_output_tokens
+        if self.config.seed is not None:
+            payload["seed"] = self.config.seed
+        rf = response_format_field(fmt, schema, strict=self.config.json_schema_strict)
+        if rf is not None:
+            payload["response_format"] = rf
+        return payload
+
+    def _post(self, payload: Mapping[str, Any], t_end: float) -> tuple[int, bytes]:
+        """POST ``payload``; (status, body). Raises _Deadline / OSError / HTTPException."""
+        data = json.dumps(payload, separators=(",", ":")).encode("utf-8")
+        headers = {
+            "Content-Type": "application/json",
+            "Accept": "application/json",
+            "User-Agent": "lmpc-llm-planner",
+        }
+        if self._api_key:
+            headers["Authorization"] = f"Bearer {self._api_key}"
+        ep = self.endpoint
+        conn: http.client.HTTPConnection
+        if self._ssl is not None:
+            conn = http.client.HTTPSConnection(
+                ep.host, ep.port, timeout=_left(t_end), context=self._ssl)
+        else:
+            conn = http.client.HTTPConnection(ep.host, ep.port, timeout=_left(t_end))
+        try:
+            conn.connect()
+            sock = conn.sock
+            conn.request("POST", ep.path, body=data, headers=headers)
+            sock.settimeout(_left(t_end))
+            resp = conn.getresponse()
+            chunks: list[bytes] = []
+            size = 0
+            while True:
+                # Every read gets only the time that is left: a server that trickles
+                # bytes cannot stretch the call past the deadline.
+                sock.settimeout(_left(t_end))
+                chunk = resp.read1(65536)
+                if not chunk:
+                    break
+                size += len(chunk)
+                if size > MAX_BODY_BYTES:
+                    raise http.client.HTTPException(
+                        f"reply body larger than {MAX_BODY_BYTES} bytes")
+                chunks.append(chunk)
+            return resp.status, b"".join(chunks)
+        finally:
+            conn.close()
+
+    def _reply(self, body: bytes, t0: float) -> BackendReply:
+        """The text of a 200 reply, or a transport error for a body that is not one."""
+        try:
+            obj = json.loads(body.decode("utf-8"))
+            choice = obj["choices"][0]
+            message = choice["message"]
+            text = message.get("content")
+        except (UnicodeDecodeError, ValueError, KeyError, IndexError, TypeError,
+                AttributeError):
+            return self._fail(t0, "transport", "the server's reply is not a chat completion "
+                                               f"(body starts {self._excerpt(body)})")
+        if not isinstance(text, str):
+            refusal = message.get("refusal") if isinstance(message, dict) else None
+            return self._fail(t0, "transport", "the reply carries no text"
+                              + (f" (refusal: {self._redact(str(refusal))[:200]})"
+                                 if refusal else ""))
+        usage = obj.get("usage") if isinstance(obj, dict) else None
+        return BackendReply(
+            text=text,
+            latency_s=time.perf_counter() - t0,
+            tokens_in=_count(usage, "prompt_tokens"),
+            tokens_out=_count(usage, "completion_tokens"),
+        )
+
+    def _step_down(self, fmt: ResponseFormat, refusals: list[str]) -> None:
+        with self._lock:
+            self._format = fmt
+        LOG.warning("openai backend: %s refused (%s); using response_format %s from now on",
+                    self.endpoint.url, "; ".join(refusals), fmt)
+
+    def _fail(self, t0: float, kind: Literal["timeout", "transport"], msg: str) -> BackendReply:
+        return BackendReply(text=None, latency_s=time.perf_counter() - t0, error_kind=kind,
+                            error=self._redact(msg))
+
+    def _redact(self, text: str) -> str:
+        """``text`` without the key (a server may echo headers in its error body)."""
+        if self._api_key:
+            text = text.replace(self._api_key, "[redacted]")
+        return text
+
+    def _excerpt(self, body: bytes) -> str:
+        # Redact the whole body before cutting it, so no piece of the key survives.
+        text = " ".join(self._redact(body.decode("utf-8", "replace")).split())
+        return repr(text[:MAX_ERROR_EXCERPT])
+
+
+def _left(t_end: float) -> float:
+    """Seconds left before ``t_end``; raises _Deadline when none are."""
+    left = t_end - time.perf_counter()
+    if left <= 0.0:
+        raise _Deadline()
+    return left
+
+
+def _count(usage: Any, key: str) -> int:
+    if isinstance(usage, dict):
+        value = usage.get(key)
+        if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
+            return value
+    return 0
