@@ -37,8 +37,8 @@ def test_record_writes_a_readable_bag_of_every_topic(tmp_path: Path, domain_id: 
     assert types["/lmpc/ego/odom"] == "nav_msgs/msg/Odometry"
     assert types["/clock"] == "rosgraph_msgs/msg/Clock"
     steps = run.episode["metrics"]["steps"]
-    # One observation per step, t = 0 .. t_end (step 0 is re-offered while discovery settles).
-    assert len(ego_stamps) == steps + 1
+    # One observation per step taken (step 0 is re-offered while discovery settles).
+    assert len(ego_stamps) == steps
     assert counts["/lmpc/control"] >= steps
     assert counts["/lmpc/decision"] == run.summary["decisions"]
     assert counts["/lmpc/map"] == 1

@@ -101,7 +101,7 @@ def _sample(rng: np.random.Generator) -> SiParams:
     cross = tuple((int(rng.choice([1, 3])), round(float(rng.uniform(0.0, 25.0)), 3),
                    round(float(rng.uniform(8.0, 12.5)), 3))
                   for _ in range(int(rng.integers(1, 4))))
-    leader_gap = float(rng.uniform(15.0, 30.0)) if rng.uniform() < 0.5 else None
+    leader_gap = float(rng.uniform(24.0, 36.0)) if rng.uniform() < 0.5 else None
     bike = ((int(rng.choice([0, 2])), round(arrival + float(rng.uniform(-4.0, 6.0)), 3))
             if rng.uniform() < 0.5 else None)
     peds = tuple(round(arrival + float(rng.uniform(-4.0, 8.0)), 3)
