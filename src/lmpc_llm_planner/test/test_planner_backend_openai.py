@@ -110,7 +110,8 @@ class FakeChatServer:
         self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
         self.server.daemon_threads = True
         self.server.block_on_close = False  # a handler still sleeping must not block close
-        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+        self.thread = threading.Thread(
+            target=self.server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
         self.thread.start()
 
     @property
@@ -278,6 +279,11 @@ def test_key_never_sent_in_clear_to_a_remote_host():
                   base_url="http://10.1.2.3:8000/v1")
 
 
+def test_openai_without_key_fails_at_start():
+    with pytest.raises(BackendError, match="LMPC_OPENAI_API_KEY"):
+        OpenAIBackend.from_env(OpenAIConfig(), {})
+
+
 def test_endpoint_and_source_parsing():
     assert parse_endpoint("http://localhost:11434/v1/").path == "/v1/chat/completions"
     assert parse_endpoint("https://api.openai.com/v1").port == 443
@@ -290,7 +296,7 @@ def test_endpoint_and_source_parsing():
 
 def test_make_backend_openai(planner_config):
     cfg = PlannerConfig.model_validate({**planner_config.model_dump(), "backend": "openai"})
-    backend = make_backend(cfg, environ={"LMPC_OPENAI_MODEL": "m1"})
+    backend = make_backend(cfg, environ={"LMPC_OPENAI_MODEL": "m1", "OPENAI_API_KEY": "k"})
     assert isinstance(backend, OpenAIBackend) and backend.name == "llm:m1"
 
 

@@ -1,12 +1,23 @@
-"""Quick solve-time benchmark of the MPC (no ROS, synthetic scene): ``run(...)``.
+"""Solve-time benchmark of the MPC (no ROS, synthetic scene): ``run(...)`` and ``main(argv)``.
 
 The scene is synthetic: the ego drives a straight road in closed loop (same bicycle
-model) with ``n_agents`` cars spread ahead in both lanes, all attended.
+model as the solver's plant, :func:`lmpc_mpc.solver.simulate_bicycle`) with
+``n_agents`` cars spread 20-78 m ahead over both eastbound lanes and the westbound
+lane, all within sensing range and so all attended (the nearest ones end up in
+the ego's way and make it brake). Figures are wall times on whatever else the
+machine is doing: run it on an idle machine for numbers to quote.
+
+``python -m lmpc_mpc.bench`` (or ``scripts/bench_mpc.py``) prints median / p99 / max
+solve time, the controller's whole ``compute`` time and the solver iterations for
+horizons 20 and 30 and 0, 5, 10, 20 agents, FATROP and IPOPT in the same run, and the
+IPOPT / FATROP ratios.
 """
 from __future__ import annotations
 
+import argparse
 import math
-from typing import Optional
+import time
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -14,42 +25,128 @@ from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE
 from lmpc_mpc import synthetic as S
 from lmpc_mpc.config import MpcConfig, load_mpc_config
 from lmpc_mpc.controller import MpcController
-from lmpc_mpc.solver import MpcSolver, simulate_bicycle
+from lmpc_mpc.solver import MpcProblem, MpcResult, MpcSolver, simulate_bicycle
+
+_LANES = (("E0_0", -4.8, 0.0, 6.0), ("E0_1", -1.6, 0.0, 7.0), ("-E0_0", 1.6, math.pi, 8.0))
+"""(lane id, y_m, yaw_rad, speed_mps) of the lanes the agents are spread over."""
+
+
+def _agents(n_agents: int, t_s: float) -> list:
+    out = []
+    for i in range(n_agents):
+        lane, y, yaw, v = _LANES[i % len(_LANES)]
+        x0 = 30.0 + 58.0 * (i + 0.5) / max(n_agents, 1)
+        x = x0 + (v if yaw == 0.0 else -v) * t_s
+        out.append(S.agent(f"a{i}", x_m=x, y_m=y, yaw_rad=yaw, v_mps=v, lane_id=lane))
+    return out
 
 
 def run(*, n_agents: int = 10, steps: int = 100, solver: str = "fatrop",
         horizon: Optional[int] = None, config: Optional[MpcConfig] = None,
         verbose: bool = True) -> dict[str, float]:
-    """Closed-loop solve times; returns and prints median / p99 / max in ms and failures."""
+    """Closed-loop solve times; returns (and prints) median / p99 / max in ms of the
+    solve and of the controller's whole ``compute`` (and its thread CPU time, which a
+    busy machine inflates less), solver iterations and failures.
+
+    The first step (which builds the compiled problems) is left out of the figures."""
     cfg = config or load_mpc_config()
     upd: dict[str, object] = {"solver": solver, "time_budget_s": 10.0}
     if horizon is not None:
         upd["horizon"] = horizon
     cfg = cfg.model_copy(update=upd)
     mpc = MpcSolver(cfg, DEFAULT_VEHICLE)
+    mpc.warm_up()
+    iters: list[int] = []
+    inner = mpc.solve
+
+    def counting_solve(problem: MpcProblem) -> MpcResult:
+        res = inner(problem)
+        iters.append(res.iterations)
+        return res
+
+    mpc.solve = counting_solve  # type: ignore[method-assign]
     ctrl = MpcController(cfg, solver=mpc)
     m = S.straight_road(length_m=1000.0)
     x = np.array([10.0, -4.8, 0.0, 8.0])
     times: list[float] = []
+    wall: list[float] = []
+    cpu: list[float] = []
     fails = 0
     for k in range(steps):
         t = k * cfg.dt_s
-        agents = [S.agent(f"a{i}", x_m=40.0 + 15.0 * i + 6.0 * t,
-                          y_m=-4.8 if i % 2 else -1.6, yaw_rad=0.0, v_mps=6.0,
-                          lane_id="E0_0" if i % 2 else "E0_1") for i in range(n_agents)]
         ego = S.ego_state(x_m=float(x[0]), y_m=float(x[1]),
                           yaw_rad=float(math.remainder(x[2], 2 * math.pi)),
                           v_mps=float(x[3]), stamp_s=t, seq=k, lane_id="E0_0")
-        ctl = ctrl.compute(S.observation(m, ego, agents))
+        obs = S.observation(m, ego, _agents(n_agents, t))
+        started = time.perf_counter()
+        cpu0 = time.thread_time()
+        ctl = ctrl.compute(obs)
+        elapsed_ms = (time.perf_counter() - started) * 1e3
+        cpu_ms = (time.thread_time() - cpu0) * 1e3
         if ctl.mode in ("shifted", "brake"):
             fails += 1
-        else:
+        elif k > 0:
             times.append(ctl.solve_time_ms)
+            wall.append(elapsed_ms)
+            cpu.append(cpu_ms)
         x = simulate_bicycle(x, np.array([[ctl.accel_mps2, ctl.steer_rad]]), dt_s=cfg.dt_s)[1]
     arr = np.array(times) if times else np.array([math.nan])
+    w = np.array(wall) if wall else np.array([math.nan])
+    it = np.array(iters[1:] if len(iters) > 1 else [0])
     out = {"median_ms": float(np.median(arr)), "p99_ms": float(np.percentile(arr, 99)),
-           "max_ms": float(np.max(arr)), "failures": float(fails)}
+           "max_ms": float(np.max(arr)), "compute_median_ms": float(np.median(w)),
+           "compute_p99_ms": float(np.percentile(w, 99)),
+           "compute_cpu_median_ms": float(np.median(cpu)) if cpu else math.nan,
+           "iter_median": float(np.median(it)),
+           "iter_max": float(np.max(it)), "failures": float(fails)}
     if verbose:
         print(f"{solver} N={cfg.horizon} agents={n_agents}: median {out['median_ms']:.2f} ms, "
-              f"p99 {out['p99_ms']:.2f} ms, max {out['max_ms']:.2f} ms, failures {fails}")
+              f"p99 {out['p99_ms']:.2f} ms, max {out['max_ms']:.2f} ms, iterations "
+              f"{out['iter_median']:.0f} / {out['iter_max']:.0f} (median / max), compute "
+              f"{out['compute_median_ms']:.2f} / {out['compute_p99_ms']:.2f} ms, "
+              f"failures {fails}")
     return out
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Command line: the FATROP / IPOPT table over horizons and agent counts."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--horizons", type=int, nargs="+", default=[20, 30])
+    ap.add_argument("--agents", type=int, nargs="+", default=[0, 5, 10, 20])
+    ap.add_argument("--solvers", nargs="+", default=["fatrop", "ipopt"],
+                    choices=["fatrop", "ipopt"])
+    ap.add_argument("--steps", type=int, default=100, help="closed-loop steps per cell")
+    ap.add_argument("--config", default=None, help="MPC config YAML (default: packaged)")
+    args = ap.parse_args(list(argv) if argv is not None else None)
+    cfg = load_mpc_config(args.config)
+    rows: dict[tuple[int, int, str], dict[str, float]] = {}
+    for horizon in args.horizons:
+        for n_agents in args.agents:
+            for name in args.solvers:
+                rows[(horizon, n_agents, name)] = run(
+                    n_agents=n_agents, steps=args.steps, solver=name, horizon=horizon,
+                    config=cfg, verbose=False)
+    head = (f"{'N':>3} {'agents':>6} {'solver':>6} | {'median':>7} {'p99':>7} {'max':>7} ms"
+            f" | {'iter med':>8} {'max':>4} | {'compute med':>11} {'p99':>7} {'cpu med':>7} ms"
+            f" | fail")
+    print(head)
+    print("-" * len(head))
+    for (horizon, n_agents, name), r in rows.items():
+        print(f"{horizon:>3} {n_agents:>6} {name:>6} | {r['median_ms']:7.2f} {r['p99_ms']:7.2f}"
+              f" {r['max_ms']:7.2f}    | {r['iter_median']:8.0f} {r['iter_max']:4.0f} | "
+              f"{r['compute_median_ms']:11.2f} {r['compute_p99_ms']:7.2f} "
+              f"{r['compute_cpu_median_ms']:7.2f}    | "
+              f"{r['failures']:.0f}")
+    if {"fatrop", "ipopt"} <= set(args.solvers):
+        print("\nIPOPT / FATROP (solve time):")
+        for horizon in args.horizons:
+            for n_agents in args.agents:
+                f, i = rows[(horizon, n_agents, "fatrop")], rows[(horizon, n_agents, "ipopt")]
+                print(f"  N={horizon:<3} agents={n_agents:<3} "
+                      f"median x{i['median_ms'] / f['median_ms']:.1f}  "
+                      f"p99 x{i['p99_ms'] / f['p99_ms']:.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -48,6 +48,8 @@ class MpcNode(LmpcNode):
         path = self.get_parameter("config_file").get_parameter_value().string_value
         self.config = load_mpc_config(path or None)
         self.controller = MpcController(self.config)
+        # build every compiled problem size now (~1.5 s), not inside the first steps
+        self.controller.solver.warm_up()
         self._map: Optional[MapSnapshot] = None
         self._agents: dict[float, AgentArray] = {}
         self._signals: dict[float, SignalStates] = {}

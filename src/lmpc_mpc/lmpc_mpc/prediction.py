@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Sequence
 
 import numpy as np
@@ -32,15 +33,24 @@ class AgentForecast:
     """The control points the forecast followed (for display and logs)."""
 
 
+@lru_cache(maxsize=256)
+def _sampled(control_points: tuple[tuple[float, float], ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Samples of the curve and their cumulative arc length, cached per curve: the
+    controller reuses an agent's curve for several steps (read-only arrays)."""
+    pts = bezier_points(control_points, _SAMPLES)
+    cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+    pts.setflags(write=False)
+    cum.setflags(write=False)
+    return pts, cum
+
+
 def predict_along(control_points: Sequence[Sequence[float]], *, v_mps: float, horizon: int,
                   dt_s: float, start_xy_m: tuple[float, float] | None = None) -> np.ndarray:
     """(horizon+1, 2) positions at constant speed along the Bezier curve of the points.
 
     ``start_xy_m``: where the agent is now; the forecast starts at the closest
     point of the curve to it (a decision's curve may be a few steps old)."""
-    pts = bezier_points(control_points, _SAMPLES)
-    seg = np.hypot(*np.diff(pts, axis=0).T)
-    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    pts, cum = _sampled(tuple((float(p[0]), float(p[1])) for p in control_points))
     s_start = 0.0
     if start_xy_m is not None:
         s_start = float(cum[int(np.argmin(np.hypot(*(pts - np.asarray(start_xy_m)).T)))])

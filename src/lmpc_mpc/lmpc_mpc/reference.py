@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import Optional, Sequence
 
 import numpy as np
@@ -62,12 +62,19 @@ def bezier_points(control_points: Sequence[Sequence[float]] | np.ndarray, n: int
         raise ReferencePathError(f"control points must be (m>=2, 2), got shape {cp.shape}")
     if n < 2:
         raise ReferencePathError(f"need at least 2 samples, got {n}")
-    deg = cp.shape[0] - 1
+    return _bernstein(cp.shape[0] - 1, n) @ cp
+
+
+@lru_cache(maxsize=64)
+def _bernstein(deg: int, n: int) -> np.ndarray:
+    """(n, deg+1) Bernstein basis at uniform parameters (cached: it only depends on the
+    degree and the sample count). Read-only."""
     t = np.linspace(0.0, 1.0, n)[:, None]
     coeff = np.array([math.comb(deg, i) for i in range(deg + 1)], dtype=float)[None, :]
     i = np.arange(deg + 1)[None, :]
     basis = coeff * t**i * (1.0 - t) ** (deg - i)
-    return basis @ cp
+    basis.setflags(write=False)
+    return basis
 
 
 @dataclass(frozen=True)
@@ -157,15 +164,21 @@ class _Polyline:
         out = np.empty((len(s), 2))
         out[:, 0] = np.interp(s, self.cum_m, self.pts[:, 0])
         out[:, 1] = np.interp(s, self.cum_m, self.pts[:, 1])
-        head = self.pts[1] - self.pts[0]
-        tail = self.pts[-1] - self.pts[-2]
-        head /= max(np.linalg.norm(head), 1e-9)
-        tail /= max(np.linalg.norm(tail), 1e-9)
         before = s < 0.0
         after = s > self.length_m
-        out[before] = self.pts[0] + s[before, None] * head
-        out[after] = self.pts[-1] + (s[after, None] - self.length_m) * tail
+        if before.any() or after.any():
+            head, tail = self._ends
+            out[before] = self.pts[0] + s[before, None] * head
+            out[after] = self.pts[-1] + (s[after, None] - self.length_m) * tail
         return out
+
+    @cached_property
+    def _ends(self) -> tuple[np.ndarray, np.ndarray]:
+        """Unit directions of the first and last segment (the straight extensions)."""
+        head = self.pts[1] - self.pts[0]
+        tail = self.pts[-1] - self.pts[-2]
+        return (head / max(math.hypot(head[0], head[1]), 1e-9),
+                tail / max(math.hypot(tail[0], tail[1]), 1e-9))
 
 
 def _dedupe(pts: np.ndarray) -> np.ndarray:
@@ -408,9 +421,9 @@ class TimedReference:
     """The dense (M, 2) geometric path the states lie on."""
 
 
-def _path_geometry(points: np.ndarray, ds_m: float) -> tuple[_Polyline, np.ndarray,
-                                                               np.ndarray, np.ndarray,
-                                                               np.ndarray]:
+def _path_geometry(points: np.ndarray, ds_m: float
+                   ) -> tuple[_Polyline, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Dense resampling of a path: (line, arc lengths, yaw, curvature, points)."""
     line = _Polyline.of(points)
     length = max(line.length_m, ds_m)
     s = np.arange(0.0, length + ds_m, ds_m)
@@ -424,6 +437,17 @@ def _path_geometry(points: np.ndarray, ds_m: float) -> tuple[_Polyline, np.ndarr
     if len(kappa) >= 3:
         kappa = np.convolve(np.pad(kappa, 1, mode="edge"), np.ones(3) / 3.0, mode="valid")
     return line, s, yaw, kappa, xy
+
+
+def braking_envelope(v_cap_mps: np.ndarray, *, dec_mps2: float, ds_m: float) -> np.ndarray:
+    """Largest speeds on a grid of spacing ``ds_m`` from which every later cap can be
+    met braking at ``dec_mps2``: the recursion ``v[i] = min(cap[i], sqrt(v[i+1]^2 +
+    2 dec ds))`` in closed form, ``v[i]^2 = min_{j>=i} cap[j]^2 + 2 dec ds (j - i)``
+    (a reverse running minimum, no Python loop)."""
+    cap = np.asarray(v_cap_mps, dtype=float)
+    step2 = 2.0 * dec_mps2 * ds_m * np.arange(len(cap))
+    return np.sqrt(np.maximum(
+        np.minimum.accumulate((cap ** 2 + step2)[::-1])[::-1] - step2, 0.0))
 
 
 def timed_reference(points: np.ndarray, *, v0_mps: float, v_max_mps: float, a_max_mps2: float,
@@ -447,11 +471,7 @@ def timed_reference(points: np.ndarray, *, v0_mps: float, v_max_mps: float, a_ma
     v_cap = np.minimum(v_max_mps, np.sqrt(a_lat_max_mps2 / np.maximum(np.abs(kappa), 1e-6)))
     if stop_at_m is not None:
         v_cap = np.where(s >= stop_at_m, 0.0, v_cap)
-    # backward pass: be able to slow down for curves / the stop point with `dec`, i.e.
-    # v_b[i]^2 = min_{j>=i} v_cap[j]^2 + 2 dec ds (j - i): a reverse running minimum
-    step2 = 2.0 * dec * ds_m * np.arange(len(v_cap))
-    v_b = np.sqrt(np.maximum(
-        np.minimum.accumulate((v_cap ** 2 + step2)[::-1])[::-1] - step2, 0.0))
+    v_b = braking_envelope(v_cap, dec_mps2=dec, ds_m=ds_m)
     end_v = float(v_b[-1])
     s_end = float(s[-1])
     n_s = len(s)

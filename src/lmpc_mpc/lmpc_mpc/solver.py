@@ -5,7 +5,8 @@ Problem (stage-wise, so FATROP's structure detection finds the OCP):
 - state ``s_k = (x, y, yaw, v, a_{k-1}, delta_{k-1}, a_{k-2}, delta_{k-2})``: the box centre
   pose and speed of the kinematic bicycle plus the two previous controls, carried so
   the first and second differences of ``A`` stay stage-local;
-- control ``A_k = (a_k, delta_k)``, dynamics one RK4 step of length ``dt``;
+- control ``A_k = (a_k, delta_k)``, dynamics one explicit midpoint (RK2) step of length
+  ``dt`` (within 8 mm of the plant over the horizon; see :func:`midpoint_step`);
 - cost ``sum_k C_trk + C_act + C_saf``:
   ``C_trk = W_x (e_lon^2 + f_lat e_lat^2) + W_v (v - v_ref)^2 + W_yaw 2(1 - cos(yaw - yaw_ref))
   + W_steer (delta - delta_ref)^2`` (``delta_ref`` from the reference curvature);
@@ -17,12 +18,17 @@ Problem (stage-wise, so FATROP's structure detection finds the OCP):
   and ``d_ik`` the distance to the agent's predicted centre measured in the reference
   frame with the lateral axis stretched by ``rho_ik`` (so the safe zone is an ellipse
   whose side clearance is the half-widths plus a side gap: a car passing in the next
-  lane is not penalised, a car ahead is kept a headway away);
+  lane is not penalised, a car ahead is kept a headway away). ``d_ik`` enters
+  *linearised* at a guess of the ego position per stage (``MpcSolver._halfplanes``), so
+  the term is convex; only obstacles that can matter at a stage get a slot there
+  (``MpcSolver._pack``);
 - hard bounds: ``a``, ``delta``, ``v`` (``VehicleParams``) and the steer rate.
 
-Every weight, the bias, the reference, the obstacle predictions and their slots are
-parameters of one compiled problem per number of obstacle slots. Unused slots have
-``on = 0`` and add no cost.
+Every weight, the bias, the reference, the obstacle half-planes and their slots are
+parameters of one compiled problem per number of obstacle slots *per stage*
+(``agent_slot_sizes``, all built on first use). Unused slots have ``on = 0`` and add no
+cost. Variables are declared in stage order (x_0, u_0, x_1, ...), the previous two
+controls ride in the state, so FATROP's manual structure (nx 8, nu 2) holds exactly.
 """
 from __future__ import annotations
 
@@ -42,12 +48,9 @@ NU = 2
 NREF = 5
 NOBS = 6
 N_W = 14  # pos, v, yaw, steer_trk, s_a, s_d, g_a, g_d, l_a, l_d, saf, bias_a, bias_d, lat
-_EPS_D2 = 1e-2
 _RELEVANCE_MARGIN_M = 6.0
 """An obstacle farther than this beyond ``d_hat`` from every guess of the ego at a stage
 is left out of that stage (its safety term is zero there; see ``MpcSolver._pack``)."""
-_GUESS = __import__("os").environ.get("V_GUESS", "shifted")
-_CONVEXIFY = __import__("os").environ.get("V_CVX", "none")
 _RELEVANCE_SPEED_MPS = 3.0
 """Speed added to the guesses' speed when judging relevance (``d_hat`` grows with v)."""
 _TOL = 1e-3
@@ -283,7 +286,6 @@ class MpcSolver:
                 "ng": [NX + 1] + [1] * (n - 1) + [0],
                 "equality": equality,
                 "expand": True,
-                **({"convexify_strategy": _CONVEXIFY} if _CONVEXIFY != "none" else {}),
                 "fatrop": {"print_level": 0, "max_iter": self.config.max_iterations,
                            "tol": _TOL, "mu_init": _MU_INIT},
                 "print_time": False,
@@ -316,12 +318,9 @@ class MpcSolver:
         c += w_yaw * 2.0 * (1.0 - ca.cos(x[2] - yawr))
         for i in range(n_slots):
             o = p[NREF + NOBS * i: NREF + NOBS * (i + 1)]
-            ox, oy, gap, headway, rho, on = o[0], o[1], o[2], o[3], o[4], o[5]
-            dx, dy = x[0] - ox, x[1] - oy
-            lon = cy * dx + sy * dy
-            lat = -sy * dx + cy * dy
-            d = ca.sqrt(lon ** 2 + (rho * lat) ** 2 + _EPS_D2)
-            short = ca.fmax(0.0, gap + headway * x[3] - d)
+            # d_ik linearised per stage (see MpcSolver._halfplanes): the term is convex
+            kx, ky, k0, gap, headway, on = o[0], o[1], o[2], o[3], o[4], o[5]
+            short = ca.fmax(0.0, gap + headway * x[3] - (kx * x[0] + ky * x[1] + k0))
             c += w_saf * on * short ** 2
         return c
 
@@ -434,7 +433,44 @@ class MpcSolver:
             pad[..., 4] = 1.0
             packed = np.concatenate([packed, pad], axis=0)
         packed[packed[..., 5] == 0.0, :5] = (0.0, 0.0, 0.0, 0.0, 1.0)
+        # linearise at the reference point where it keeps clear of the obstacle (the
+        # reference carries the yield / commit choice), else at the shifted previous
+        # plan (which the last solve kept clear); without a plan, at the reference
+        ref_rel = self._relevance(packed, [ref], yaw_ref)
+        use_ref = (ref_rel >= 0.0)[..., None]
+        plan = np.broadcast_to(guesses[-1][None, :, :2], packed.shape[:2] + (2,))
+        at = np.where(use_ref, np.broadcast_to(ref[None, :, :2], plan.shape), plan)
+        packed = self._halfplanes(packed, at, yaw_ref)
         return np.transpose(packed, (1, 0, 2)), n_slots
+
+    @staticmethod
+    def _halfplanes(packed: np.ndarray, at: np.ndarray, yaw_ref: np.ndarray) -> np.ndarray:
+        """Rows (ox, oy, gap, headway, rho, on) -> (kx, ky, k0, gap, headway, on) with
+        ``kx x + ky y + k0`` the stretched distance ``d_ik`` linearised at the point
+        ``at`` (n_slots, N+1, 2) of stage k: its tangent plane, a lower bound of the
+        convex ``d_ik``. So ``max(0, d_hat - d_lin)^2`` is convex in the ego position
+        and never smaller than the exact term (an approximation: conservative away
+        from the linearisation point). The exact term's Hessian is strongly indefinite
+        near an obstacle: the IPM then needed up to its 60-iteration cap."""
+        c, s = np.cos(yaw_ref), np.sin(yaw_ref)
+        ox, oy, rho = packed[..., 0], packed[..., 1], packed[..., 4]
+        dx = at[..., 0] - ox
+        dy = at[..., 1] - oy
+        lon = c * dx + s * dy
+        lat_s = rho * (-s * dx + c * dy)
+        dist = np.hypot(lon, lat_s)
+        # on top of the obstacle the direction is undefined: take "behind it"
+        tiny = dist < 1e-6
+        a = np.where(tiny, -1.0, lon / np.where(tiny, 1.0, dist))
+        b = np.where(tiny, 0.0, lat_s / np.where(tiny, 1.0, dist))
+        out = np.empty_like(packed)
+        out[..., 0] = a * c - b * rho * s
+        out[..., 1] = a * s + b * rho * c
+        out[..., 2] = -(out[..., 0] * ox + out[..., 1] * oy)
+        out[..., 3] = packed[..., 2]
+        out[..., 4] = packed[..., 3]
+        out[..., 5] = packed[..., 5]
+        return out
 
     def _params(self, prob: MpcProblem) -> tuple[np.ndarray, np.ndarray, int]:
         n, cfg, veh = self.n, self.config, self.vehicle
@@ -478,28 +514,6 @@ class MpcSolver:
             raise MpcInputError("MPC problem contains NaN or infinite numbers")
         return p, x0, n_slots
 
-    def _reference_guess(self, x0: np.ndarray, prob: MpcProblem) -> np.ndarray:
-        """Initial guess on the time-parameterised reference: its states, the
-        accelerations of its speed profile and the steer of its curvature."""
-        n, veh = self.n, self.vehicle
-        ref = np.asarray(prob.reference, dtype=float)
-        kap = np.asarray(prob.reference_curvature_1pm, dtype=float)
-        us = np.empty((n, NU))
-        us[:, 0] = np.clip(np.diff(ref[:, 3]) / self.dt_s, -veh.max_decel_mps2,
-                           veh.max_accel_mps2)
-        us[:, 1] = np.clip(np.arctan(veh.wheelbase_m * kap[1:]), -veh.max_steer_rad,
-                           veh.max_steer_rad)
-        xs = np.empty((n + 1, NX))
-        xs[:, :4] = ref
-        xs[:, 2] = np.unwrap(np.concatenate([[x0[2]], ref[:, 2]]))[1:]
-        xs[0] = x0
-        xs[1:, 4:6] = us
-        xs[1:, 6:8] = np.vstack([x0[4:6], us[:-1]])
-        guess = np.empty((n + 1, NX + NU))
-        guess[:, :NX] = xs
-        guess[:n, NX:] = us
-        return guess.ravel()[: (n + 1) * NX + n * NU]
-
     def _initial_guess(self, x0: np.ndarray, n_slots: int) -> np.ndarray:
         n = self.n
         if self._warm is not None and self._warm_slots is not None:
@@ -535,8 +549,7 @@ class MpcSolver:
         except MpcInputError as exc:
             return self._fail(f"bad input: {exc}", t0, 0)
         comp = self.compiled(n_slots)
-        w0 = (self._reference_guess(x0, problem) if _GUESS == "reference"
-              else self._initial_guess(x0, n_slots))
+        w0 = self._initial_guess(x0, n_slots)
         try:
             sol = comp.solver(x0=w0, p=p, lbx=comp.lbx, ubx=comp.ubx, lbg=comp.lbg,
                               ubg=comp.ubg)

@@ -216,6 +216,8 @@ def generate_si(seed: int, scene_dir: Path) -> Scene:
         add_arrival(f"cross{i}", f"r_{arm}s", arm, arrival, speed)
     if p.bike is not None:
         arm, arrival = p.bike
+        if arm == 0 and p.leader_gap_m is not None:
+            arm = 2  # a bike in the leader's lane would block the leader's insertion
         add_arrival("bike0", f"r_{arm}s", arm, arrival, 5.0, type_id="bike",
                     lane=_road_lanes(net.getEdge(f"A{arm}in"))[0].getIndex())
     if p.leader_gap_m is not None:

@@ -55,6 +55,8 @@ MAX_BODY_BYTES = 4_000_000
 MAX_ERROR_EXCERPT = 300
 SCHEMA_NAME = "lmpc_decision"
 SOURCE_PATTERN = re.compile(r"[^\w.:/\-]")
+KEY_REQUIRED_HOSTS = ("api.openai.com",)
+"""Hosts that answer nothing without a key: fail at start-up, not on every call."""
 
 ResponseFormat = Literal["json_schema", "json_object", "none"]
 
@@ -153,6 +155,11 @@ class OpenAIBackend:
             raise BackendError(
                 f"openai backend: refusing to send the API key in clear text to "
                 f"{self.endpoint.host}; use https, or set openai.allow_plain_http_key"
+            )
+        if not self._api_key and self.endpoint.host in KEY_REQUIRED_HOSTS:
+            raise BackendError(
+                f"openai backend: {self.endpoint.host} needs an API key; set "
+                f"{config.api_key_env} (or {ENV_KEY_FALLBACK}) in the environment"
             )
         self._format: ResponseFormat = config.response_format
         self._lock = threading.Lock()

@@ -19,10 +19,13 @@ What is repeated: the raw text (refused text is refused again, so re-asks and
 fallbacks repeat), a recorded timeout / transport failure, the token counts, and the
 latency. ``latency: sleep`` takes each call's recorded wall time (capped just below
 the request's deadline, so a recorded timeout stays a timeout), so the planner measures
-about the recorded decision latency; this is APPROXIMATE (a few ms of scheduling and
-prompt building). ``latency: report`` answers at once and reports the recorded
-latency in ``BackendReply.latency_s`` only (exact once the planner takes a
-backend-reported latency; see docs/lmpc_llm_planner.md, "Backends").
+about the recorded decision latency; this is APPROXIMATE (scheduling, prompt building:
+milliseconds when idle, tens of ms on a loaded machine). ``latency: report`` answers at
+once and reports latencies whose sum over a decision's calls is exactly the recorded
+decision latency (all of it on the decision's first call); it sets
+``reports_latency = True`` for a planner that takes backend-reported latencies instead
+of its wall clock (see docs/lmpc_llm_planner.md, "Backends": a hook PlannerCore lacks
+so far).
 """
 from __future__ import annotations
 
@@ -51,6 +54,10 @@ class RecordedCall:
 
     index: int
     """Position in the log (calls in recorded order)."""
+    position: int
+    """Position among the calls of its decision (0 = first)."""
+    decision_latency_s: float
+    """The recorded decision's ``latency_s`` (all its calls, as reported)."""
     stamp_ms: int
     mode: str
     stage: str
@@ -66,7 +73,7 @@ class RecordedCall:
         if self.raw_output is None:
             kind = "timeout" if self.error_kind == "timeout" else "transport"
             return BackendReply(text=None, latency_s=latency_s, error_kind=kind,
-                                error=f"replayed: {self.error or kind}")
+                                error=self.error or kind)  # verbatim: it goes into the re-ask
         return BackendReply(text=self.raw_output, latency_s=latency_s,
                             tokens_in=self.tokens_in, tokens_out=self.tokens_out)
 
@@ -115,6 +122,8 @@ def load_replay_log(path: str | Path) -> ReplayLog:
             parsed = [
                 RecordedCall(
                     index=len(calls) + i,
+                    position=i,
+                    decision_latency_s=_float(rec.get("latency_s")),
                     stamp_ms=stamp_ms,
                     mode=mode,
                     stage=str(a["stage"]),
@@ -150,6 +159,8 @@ class ReplayBackend:
         self.config = config or ReplayConfig()
         self.log = log
         self.name = "replay"
+        self.reports_latency = self.config.latency == "report"
+        """Replies carry the recorded latency (the decision's on its first call)."""
         if self.config.keep_source and log.sources:
             # The most frequent recorded source (ties: alphabetical, so it is repeatable).
             self.name = sorted(log.sources.items(), key=lambda kv: (-kv[1], kv[0]))[0][0]
@@ -206,9 +217,12 @@ class ReplayBackend:
                 error=(f"replay: no recorded answer for stamp {request.scene.obs.stamp_s:.3f} s, "
                        f"mode {request.mode}, stage {request.stage}, prompt {sha[:12]}"),
             )
-        if self.config.latency == "sleep":
-            wait_s = min(call.latency_s, request.deadline_s - SLEEP_MARGIN_S)
-            wait_s -= time.perf_counter() - t0
-            if wait_s > 0.0:
-                time.sleep(wait_s)
-        return call.reply(call.latency_s)
+        if self.reports_latency:
+            # The whole recorded decision latency on its first call, 0 on the others: their
+            # sum is then exactly the recorded value (no floating-point remainder).
+            return call.reply(call.decision_latency_s if call.position == 0 else 0.0)
+        wait_s = min(call.latency_s, request.deadline_s - SLEEP_MARGIN_S)
+        wait_s -= time.perf_counter() - t0
+        if wait_s > 0.0:
+            time.sleep(wait_s)
+        return call.reply(time.perf_counter() - t0)
