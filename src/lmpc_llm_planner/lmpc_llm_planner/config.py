@@ -103,7 +103,10 @@ class LocalConfig(_Frozen):
     """CPU threads for generation and prompt evaluation (1 leaves a core to the MPC)."""
     n_ctx: int = Field(default=4096, ge=512, le=32768)
     """Context window in tokens: prompt (~1.5-2.3 k SmolLM2 tokens) + answer."""
-    n_batch: int = Field(default=512, ge=16, le=8192)
+    n_batch: int = Field(default=128, ge=16, le=8192)
+    """Prompt tokens per evaluation step; the deadline is checked between steps."""
+    compact_schema: bool = True
+    """Replace the JSON schema in the prompt by a short outline (the grammar enforces it)."""
     max_output_tokens: int = Field(default=384, ge=16, le=8192)
     max_reasoning_chars: int = Field(default=300, ge=20, le=8000)
     """Cap on ``reasoning`` in the grammar: a small model otherwise rambles until

