@@ -127,7 +127,7 @@ def _link(conn: Any) -> LaneLink:
 
 @dataclass(frozen=True)
 class LaneAttributes:
-    """Per-lane facts the ``Lane`` message cannot carry yet (see docs/lmpc_bridge.md).
+    """Per-lane facts from the net file, copied into the ``Lane`` message.
 
     Generic (from the net file only): neighbours are the lanes of the same edge
     with index +-1 (SUMO: higher index = further left) that share a vehicle class
@@ -191,6 +191,7 @@ def build_map(scene: Scene, *, map_radius_m: float = MAP_RADIUS_M,
         return any(math.hypot(p[0] - q[0], p[1] - q[1]) <= map_radius_m
                    for p in shape for q in route_pts[:: max(len(route_pts) // 50, 1)])
 
+    attributes = lane_attributes(scene)
     lanes: list[Lane] = []
     stop_lines: list[StopLine] = []
     for edge in net.getEdges(withInternal=True):
@@ -206,6 +207,10 @@ def build_map(scene: Scene, *, map_radius_m: float = MAP_RADIUS_M,
                 centerline=tuple(shape), width_m=float(lane.getWidth()),
                 speed_limit_mps=float(lane.getSpeed()), length_m=float(lane.getLength()),
                 internal=internal, successors=tuple(_link(c) for c in outgoing),
+                allowed=attributes[lane.getID()].allowed_classes,
+                left_lane=attributes[lane.getID()].left_neighbour,
+                right_lane=attributes[lane.getID()].right_neighbour,
+                roundabout=attributes[lane.getID()].roundabout,
             ))
             to_node = edge.getToNode()
             if (not internal and outgoing and to_node is not None

@@ -69,9 +69,10 @@ def test_si_map_has_signalized_links_and_crossings(maps: dict) -> None:
     link = next(s for s in first.successors if s.via_lane == snap.ego_route[1])
     assert link.signalized and link.tls_id == "C" and link.link_index is not None
     assert any(s.signalized for s in snap.stop_lines if s.lane_id == first.id)
-    # sidewalks (slow lane 0 of each arm) and crossings inside the junction
-    # (the Lane schema has no vClass permissions yet: a sidewalk shows as a 2 m lane)
+    # sidewalks (lane 0 of each arm, pedestrians only) and crossings inside the junction
     assert lanes["A0in_0"].width_m == pytest.approx(2.0) and first.index >= 1
+    assert lanes["A0in_0"].allowed == ("pedestrian",) and "passenger" in first.allowed
+    assert first.right_lane != "A0in_0"  # a sidewalk is no neighbour for a car
     assert any(lane.id.startswith(":C_c") and lane.internal for lane in snap.lanes)
     assert scene.additional_files and "offset" in scene.additional_files[0].read_text()
 
@@ -86,6 +87,7 @@ def test_rab_map_has_a_ring(maps: dict) -> None:
         assert any(s.to_lane == nxt for s in lanes[lane_id].successors)
     route_ring = [lid for lid in snap.ego_route if lid in ring]
     assert route_ring and snap.ego_route[0] == "A0in_0"
+    assert all(lanes[r].roundabout for r in ring) and not lanes["A0in_0"].roundabout
 
 
 def test_lane_map_needs_a_lane_change(maps: dict) -> None:
@@ -98,6 +100,8 @@ def test_lane_map_needs_a_lane_change(maps: dict) -> None:
     assert snap.ego_route[-1] == "ramp_0" and snap.target.lane_ids == ("ramp_0",)
     assert geometry.index_of(f"main1_{scene.ego_depart_lane}", previous_index=0) == 0
     assert lanes["main1_0"].successors
+    assert lanes["main1_0"].left_lane == "main1_1" and lanes["main1_1"].right_lane == "main1_0"
+    assert lanes["main1_0"].right_lane is None
 
 
 @pytest.mark.parametrize("family", ["eoa", "construction"])

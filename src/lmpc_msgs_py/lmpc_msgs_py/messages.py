@@ -88,6 +88,13 @@ class Lane(_Part):
     internal: bool = False
     """True for a lane inside a junction (SUMO ``:junction_..`` lanes)."""
     successors: tuple[LaneLink, ...] = ()
+    allowed: tuple[Annotated[str, Field(max_length=32)], ...] = Field(default=(), max_length=16)
+    """Vehicle classes allowed on the lane (SUMO vClass names); empty = unknown."""
+    left_lane: Optional[Ident] = None
+    """Neighbour lane to the left on the same edge that shares a vehicle class."""
+    right_lane: Optional[Ident] = None
+    roundabout: bool = False
+    """Lane of a roundabout ring (or inside one of its junctions)."""
 
 
 class StopLine(_Part):
