@@ -8,6 +8,7 @@ layout) and ``summary.json`` (per family and method, plus the relative O.C.
 change of each method against ``mpc``).
 
     benchmark.py --families usi --seeds 0-24 --methods mpc,lmpc-rules --out runs/bench
+    benchmark.py --scene examples/city.yaml --methods mpc,lmpc-rules   # your own network
 """
 from __future__ import annotations
 
@@ -68,8 +69,26 @@ def make_planner(method: str) -> Any:
     return PlannerCore(config, make_backend(config), load_mpc_config())
 
 
-def run_scene(method: str, family: str, seed: int, work_dir: str) -> dict[str, Any]:
-    """One episode in this worker process; returns its results row."""
+class _SceneFileSim:
+    """Presents one external scene through ``reset(family, seed)``, the call ``run_episode``
+    makes; everything else is the worker's ``SumoSim``."""
+
+    def __init__(self, sim: Any, scene: Any) -> None:
+        self._sim, self._scene = sim, scene
+
+    def reset(self, family: str, seed: int, *, max_time_s: Optional[float] = None) -> Any:
+        return self._sim.reset_scene(self._scene, max_time_s=max_time_s)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._sim, name)
+
+
+def run_scene(method: str, family: str, seed: int, work_dir: str,
+              scene_file: Optional[str] = None) -> dict[str, Any]:
+    """One episode in this worker process; returns its results row.
+
+    With ``scene_file`` the episode runs that scene description (``family`` and
+    ``seed`` are then its name and SUMO seed, for the row)."""
     global _SIM, _SOLVER
     from lmpc_bridge.runner import run_episode
     from lmpc_bridge.sim import SumoSim
@@ -84,9 +103,15 @@ def run_scene(method: str, family: str, seed: int, work_dir: str) -> dict[str, A
         _SOLVER.warm_up()
     _SOLVER.reset()  # no warm start carried over from the previous episode
     started = time.perf_counter()
-    result = run_episode(_SIM, family=family, seed=seed,
+    sim, max_time_s = _SIM, 200.0
+    if scene_file is not None:
+        from lmpc_bridge.scenarios.external import build_external_scene
+
+        scene = build_external_scene(scene_file, work_dir=Path(work_dir))
+        sim, max_time_s = _SceneFileSim(_SIM, scene), scene.max_time_s
+    result = run_episode(sim, family=family, seed=seed,
                          controller=MpcController(config, solver=_SOLVER),
-                         planner=make_planner(method))
+                         planner=make_planner(method), max_time_s=max_time_s)
     m = result.metrics
     return {
         "family": family, "seed": seed, "method": method, "outcome": result.outcome,
@@ -150,6 +175,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--methods", default="mpc,lmpc-rules")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--out", type=Path, default=Path("runs/bench"))
+    ap.add_argument("--scene", type=Path,
+                    help="run this scene description (YAML) instead of families / seeds")
     args = ap.parse_args(argv)
     families = [f.strip() for f in args.families.split(",") if f.strip()]
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
@@ -159,10 +186,23 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     work_dir = tempfile.mkdtemp(prefix="lmpc-bench-")
     jobs = [(m, f, s) for f in families for s in args.seeds for m in methods]
+    scene_file: Optional[str] = None
+    if args.scene is not None:
+        from lmpc_bridge.scenarios import SceneError
+        from lmpc_bridge.scenarios.external import build_external_scene
+
+        try:  # validate (and build once) before any worker starts
+            scene = build_external_scene(args.scene, work_dir=Path(work_dir))
+        except SceneError as exc:
+            print(f"benchmark: {exc}", file=sys.stderr)
+            return 2
+        scene_file = str(args.scene.resolve())
+        jobs = [(m, scene.family, scene.seed) for m in methods]
     rows: list[dict[str, Any]] = []
     t0 = time.monotonic()
     with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
-        futures = {pool.submit(run_scene, m, f, s, work_dir): (m, f, s) for m, f, s in jobs}
+        futures = {pool.submit(run_scene, m, f, s, work_dir, scene_file): (m, f, s)
+                   for m, f, s in jobs}
         for fut in as_completed(futures):
             m, f, s = futures[fut]
             try:

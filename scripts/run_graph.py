@@ -7,6 +7,7 @@ and writes a summary JSON. Exit code: 0 target reached, 1 collision,
 2 timeout, 3 error (a node crashed, or the episode never finished).
 
     run_graph.py --scenario usi --seed 0 --planner rules --clock sync
+    run_graph.py --scene examples/city.yaml --planner rules    # your own network
 """
 from __future__ import annotations
 
@@ -142,6 +143,9 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
         description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--scenario", default="usi", help="scenario family (default usi)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--scene", type=Path,
+                    help="scene description (YAML) on your own SUMO network, instead of "
+                         "--scenario/--seed (README 'Your own network')")
     ap.add_argument("--planner", choices=["rules", "none", "mock"], default="rules",
                     help="rules: the deterministic reasoner; none: the MPC baseline alone; "
                          "mock: the mock LLM node playing --mock-script")
@@ -173,6 +177,8 @@ def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, 
         },
         "mpc": {"use_sim_time": True},
     }
+    if args.scene is not None:
+        params["bridge"]["scene_file"] = str(args.scene.resolve())
     if args.planner == "rules":
         params["planner"] = {"use_sim_time": True, "backend": "rules", "run_dir": str(run_dir)}
     elif args.planner == "mock":
@@ -186,6 +192,17 @@ def run(args: argparse.Namespace) -> dict[str, object]:
     run_dir = run_dir.resolve()
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "episode.json").unlink(missing_ok=True)
+    if args.scene is not None:
+        # Check the scene file and its network before any node starts (the bridge reuses
+        # this build); problems only SUMO can see come from the bridge ("scene error:").
+        from lmpc_bridge.scenarios import SceneError
+        from lmpc_bridge.scenarios.external import build_external_scene
+
+        try:
+            scene = build_external_scene(args.scene, work_dir=run_dir / "scene")
+        except SceneError as exc:
+            return scene_failure(run_dir, args, str(exc))
+        args.scenario, args.seed = scene.family, scene.seed
     graph = Graph(run_dir, ros_env(args.domain_id), echo=not args.quiet)
     params = node_params(args, run_dir)
     # Keep the planner (a local LLM may saturate a core) off the core the MPC uses.
@@ -233,6 +250,23 @@ def run(args: argparse.Namespace) -> dict[str, object]:
     return summarize(run_dir, graph, wall_s, crashed=crashed, interrupted=interrupted, args=args)
 
 
+def scene_failure(run_dir: Path, args: argparse.Namespace, detail: str) -> dict[str, object]:
+    """Summary of a run that never started because its scene file is wrong."""
+    summary: dict[str, object] = {
+        "scenario": str(args.scene), "seed": args.seed, "planner": args.planner,
+        "clock": args.clock, "outcome": "error", "detail": detail, "sim_time_s": 0.0,
+        "wall_time_s": 0.0, "real_time_factor": None, "collisions": 0, "decisions": 0,
+        "fallbacks": 0, "late_controls": 0, "mpc_solve_ms": {}, "control_latency_ms": {},
+        "metrics": {}, "nodes": {}, "run_dir": str(run_dir), "bag": None,
+    }
+    text = json.dumps(summary, indent=2)
+    (run_dir / "summary.json").write_text(text)
+    if args.summary_json:
+        args.summary_json.parent.mkdir(parents=True, exist_ok=True)
+        args.summary_json.write_text(text)
+    return summary
+
+
 def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
               interrupted: bool, args: argparse.Namespace) -> dict[str, object]:
     episode_path = run_dir / "episode.json"
@@ -247,7 +281,10 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
             reasons.append(f"wall timeout {args.wall_timeout_s:.0f}s")
         if interrupted:
             reasons.append("interrupted")
-        if not episode:
+        scene_errors = [line for line in bridge.lines if line.startswith("scene error:")]
+        if scene_errors:
+            reasons.append(scene_errors[-1])
+        elif not episode:
             reasons.append("the bridge wrote no episode record")
         detail = "; ".join(reasons) or detail
     sim_s = float(episode.get("sim_time_s", 0.0))

@@ -14,11 +14,13 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob(package_name + "/config/*.yaml")),
     ],
-    install_requires=["setuptools", "lmpc_msgs_py", "numpy>=1.26,<3", "casadi>=3.6.5,<4", "pyyaml>=6,<7"],
+    install_requires=["setuptools", "lmpc_msgs_py", "numpy>=1.26,<3", "casadi>=3.6.5,<4",
+                      "pyyaml>=6,<7"],
     python_requires=">=3.10",
     zip_safe=False,
     maintainer="LanguageMPC ROS 2 maintainers",
-    description="LanguageMPC MPC: Bezier reference candidates, prediction, CasADi MPC, weight pool.",
+    description="LanguageMPC MPC: Bezier reference candidates, prediction, CasADi MPC, "
+                "weight pool.",
     license="Apache-2.0",
     tests_require=["pytest"],
     entry_points={

@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import math
 import statistics
+import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -30,7 +31,9 @@ from pydantic import BaseModel, ConfigDict, Field
 from rcl_interfaces.msg import ParameterDescriptor
 from rosgraph_msgs.msg import Clock
 
-from lmpc_bridge.sim import SumoSim
+from lmpc_bridge.scenarios import SceneError
+from lmpc_bridge.scenarios.external import build_external_scene
+from lmpc_bridge.sim import SimError, SumoSim
 from lmpc_msgs_py import qos as lmpc_qos
 from lmpc_msgs_py import topics
 from lmpc_msgs_py.base_node import LmpcNode, run_node
@@ -70,6 +73,9 @@ class BridgeConfig(BaseModel):
     linger_s: float = Field(1.0, ge=0)
     """Wall seconds to keep serving after the episode ended (final status delivery)."""
     ego_id: str = ""
+    scene_file: str = ""
+    """A scene description (YAML, README "Your own network") instead of scenario / seed;
+    its own max_time_s applies."""
 
 
 @dataclass
@@ -116,11 +122,17 @@ class BridgeNode(LmpcNode):
         self.run_dir = run_dir
 
         self.sim = SumoSim(work_dir=run_dir / "scene")
-        self.get_logger().info(
-            f"building scene {self.cfg.scenario} seed {self.cfg.seed} "
-            f"({self.cfg.clock_mode} clock)"
-        )
-        self.sim.reset(self.cfg.scenario, self.cfg.seed, max_time_s=self.cfg.max_time_s)
+        if self.cfg.scene_file:
+            self.get_logger().info(
+                f"building scene from {self.cfg.scene_file} ({self.cfg.clock_mode} clock)")
+            scene = build_external_scene(self.cfg.scene_file, work_dir=run_dir / "scene")
+            self.sim.reset_scene(scene)
+        else:
+            self.get_logger().info(
+                f"building scene {self.cfg.scenario} seed {self.cfg.seed} "
+                f"({self.cfg.clock_mode} clock)"
+            )
+            self.sim.reset(self.cfg.scenario, self.cfg.seed, max_time_s=self.cfg.max_time_s)
 
         self.pub_clock = self.create_publisher(Clock, topics.CLOCK, lmpc_qos.CLOCK)
         self.pub_map = self.json_publisher(MapSnapshot, topics.MAP, lmpc_qos.LATCHED)
@@ -349,8 +361,8 @@ class BridgeNode(LmpcNode):
     def _write_episode(self, status: EpisodeStatus) -> None:
         sources = list(self.stats.decisions.values())
         out = {
-            "scenario": self.cfg.scenario,
-            "seed": self.cfg.seed,
+            "scenario": self.sim.scene.family,
+            "seed": self.sim.scene.seed,
             "clock_mode": self.cfg.clock_mode,
             "outcome": status.outcome,
             "detail": status.detail,
@@ -383,8 +395,17 @@ class BridgeNode(LmpcNode):
         super().destroy_node()
 
 
+SCENE_ERROR_EXIT = 4
+"""Exit code of the bridge when its scene cannot be built or started."""
+
+
 def main(args: Optional[list[str]] = None) -> int:
-    return run_node(BridgeNode, args)
+    try:
+        return run_node(BridgeNode, args)
+    except (SceneError, SimError) as exc:
+        # One clear line (the launcher shows it); SUMO is already closed by reset_scene.
+        print(f"scene error: {exc}", file=sys.stderr, flush=True)
+        return SCENE_ERROR_EXIT
 
 
 if __name__ == "__main__":

@@ -35,6 +35,10 @@ class NearbyVehicle(_Frozen):
     at_red_light: bool = False
     """Its next traffic light within 30 m shows red / yellow: never counted by ``ineff``
     (paper: "vehicles stopped at red lights are excluded"), even when ``affected``."""
+    length_m: Optional[float] = None
+    """Its box length (for pictures / replay); None in records written before it existed."""
+    width_m: Optional[float] = None
+    """Its box width; None in records written before it existed."""
 
 
 class StepRecord(_Frozen):

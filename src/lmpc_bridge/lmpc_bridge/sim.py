@@ -42,7 +42,7 @@ from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 from lmpc_bridge.dynamics import EgoPose, clamp_control, step_bicycle, wrap_angle_rad
 from lmpc_bridge.geometry import OrientedBox, box_gap_m, boxes_overlap
-from lmpc_bridge.mapping import RouteGeometry, build_map
+from lmpc_bridge.mapping import RouteGeometry, build_map, read_net
 from lmpc_bridge.metrics import compute_metrics
 from lmpc_bridge.record import EpisodeRecord, NearbyVehicle, StepRecord
 from lmpc_bridge.scenarios import Scene, build_scene
@@ -169,6 +169,7 @@ class SumoSim:
         self._collided_with: str | None = None
         self._reached_at_s: float | None = None
         self._max_time_s = 200.0
+        self._foes_query_ok = True
 
     # --- lifecycle ----------------------------------------------------------------------
     def reset(self, family: str, seed: int, *, max_time_s: float | None = None) -> Observation:
@@ -176,8 +177,28 @@ class SumoSim:
         self.close()
         self._reset_state()
         scene = build_scene(family, seed, work_dir=self._work_dir)
+        return self.reset_scene(scene, max_time_s=max_time_s)
+
+    def reset_scene(self, scene: Scene, *, max_time_s: float | None = None) -> Observation:
+        """Start SUMO on a built ``scene`` (a family's or an external one), insert the ego.
+
+        ``scene.params["warmup_s"]`` (external scenes) runs SUMO that long before the
+        ego is inserted, so background traffic fills the network. Failures raise
+        :class:`SimError` naming the problem (SUMO cannot load the net, the start
+        overlaps a vehicle, SUMO refuses the ego) and leave SUMO closed.
+        """
+        self.close()
+        self._reset_state()
+        try:
+            return self._start_scene(scene, max_time_s)
+        except BaseException:
+            self.close()  # nothing half-started stays running
+            raise
+
+    def _start_scene(self, scene: Scene, max_time_s: float | None) -> Observation:
         self._scene = scene
         self._max_time_s = scene.max_time_s if max_time_s is None else float(max_time_s)
+        family, seed = scene.family, scene.seed
         t = self._traci
         cmd = [self._binary, "-n", str(scene.net_file), "-r", str(scene.route_file),
                "--step-length", f"{DT_S}", "--time-to-teleport", "-1",
@@ -187,8 +208,18 @@ class SumoSim:
         if scene.additional_files:
             cmd += ["-a", ",".join(str(p) for p in scene.additional_files)]
         cmd += list(self._extra_args)
-        t.start(cmd)
+        try:
+            t.start(cmd)
+        except Exception as exc:  # noqa: BLE001 - libsumo raises its own types
+            raise SimError(f"SUMO cannot load scene {family}/{seed} (net {scene.net_file}, "
+                           f"routes {scene.route_file}, additional "
+                           f"{[str(p) for p in scene.additional_files]}): {exc}") from None
         self._started = True
+        warmup_steps = int(round(float(scene.params.get("warmup_s", 0.0)) / DT_S))
+        for _ in range(warmup_steps):
+            t.simulationStep()
+        if warmup_steps:
+            self._check_start_free(scene)
         t.vehicle.add(EGO_ID, "r_ego", typeID="ego_type", depart="now",
                       departLane=str(scene.ego_depart_lane),
                       departPos=f"{scene.ego_depart_pos_m:.3f}",
@@ -215,14 +246,43 @@ class SumoSim:
                                    list(_VEHICLE_VARS))
         t.vehicle.subscribeContext(EGO_ID, tc.CMD_GET_PERSON_VARIABLE, self._range_m,
                                    list(_PERSON_VARS))
-        self._map, self._route = build_map(scene)
+        net = read_net(scene.net_file)
+        self._map, self._route = build_map(scene, net=net)
+        # libsumo 1.28 crashes (SIGSEGV) in getJunctionFoes at an "unregulated" junction
+        # (no right-of-way data, e.g. netgenerate --spider centres): skip the query there.
+        self._foes_query_ok = not any(
+            (net.getEdge(e).getToNode().getType() or "") == "unregulated"
+            for e in scene.ego_route_edges)
         fx, fy = t.vehicle.getPosition(EGO_ID)
         yaw = yaw_from_sumo_angle(t.vehicle.getAngle(EGO_ID))
         half = self._vehicle.length_m / 2.0
         self._pose = EgoPose(x_m=fx - half * math.cos(yaw), y_m=fy - half * math.sin(yaw),
                              yaw_rad=yaw, v_mps=scene.ego_depart_speed_mps)
         self._refresh()
+        ego_box = OrientedBox(self._pose.x_m, self._pose.y_m, yaw, self._vehicle.length_m,
+                              self._vehicle.width_m)
+        for s in sorted(self._seen.values(), key=lambda s: s.id):
+            if boxes_overlap(ego_box, s.box()):
+                raise SimError(f"scene {family}/{seed}: the ego's start overlaps {s.kind} "
+                               f"{s.id!r} at ({s.x_m:.1f}, {s.y_m:.1f}): choose another start "
+                               f"position or warm-up time")
         return self.observe()
+
+    def _check_start_free(self, scene: Scene) -> None:
+        """After the warm-up: SimError when a vehicle occupies the ego's start slot."""
+        t = self._traci
+        lane_id = f"{scene.ego_route_edges[0]}_{scene.ego_depart_lane}"
+        front = scene.ego_depart_pos_m
+        back = front - self._vehicle.length_m
+        for vid in t.lane.getLastStepVehicleIDs(lane_id):
+            v_front = float(t.vehicle.getLanePosition(vid))
+            v_back = v_front - float(t.vehicle.getLength(vid))
+            if v_front > back - 1.0 and v_back < front + 1.0:
+                raise SimError(
+                    f"scene {scene.family}/{scene.seed}: the ego's start (lane {lane_id}, "
+                    f"front at {front:.1f} m) overlaps vehicle {vid!r} (front at "
+                    f"{v_front:.1f} m) after the {scene.params.get('warmup_s')} s warm-up: "
+                    f"choose another start position or warm-up time")
 
     def close(self) -> None:
         """Stop SUMO (safe to call twice)."""
@@ -490,7 +550,8 @@ class SumoSim:
                           v_mps=s.v_mps, v_max_mps=s.v_max_mps, a_mps2=s.a_mps2,
                           gap_m=gaps[s.id], affected=s.id in affected,
                           affected_reason=affected.get(s.id, ""),
-                          at_red_light=s.id in affected and self._at_red_light(s.id))
+                          at_red_light=s.id in affected and self._at_red_light(s.id),
+                          length_m=s.length_m, width_m=s.width_m)
             for s in sorted(self._seen.values(), key=lambda s: s.id)
         )
 
@@ -520,7 +581,8 @@ class SumoSim:
             if leader == EGO_ID:
                 out[vid] = "leader"
         try:
-            foes = t.vehicle.getJunctionFoes(EGO_ID, AFFECTED_RADIUS_M)
+            foes = (t.vehicle.getJunctionFoes(EGO_ID, AFFECTED_RADIUS_M)
+                    if self._foes_query_ok else ())
         except Exception:  # noqa: BLE001
             foes = ()
         for foe in foes:

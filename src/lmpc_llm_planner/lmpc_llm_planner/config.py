@@ -28,15 +28,15 @@ class _Frozen(BaseModel):
 class RulesConfig(_Frozen):
     """Knobs of the deterministic ``rules`` reasoner (backends/rules.py)."""
 
-    safe_gap_s: float = Field(default=2.0, gt=0.0, le=30.0)
+    safe_gap_s: float = Field(default=1.5, gt=0.0, le=30.0)
     """A left turn may go when every oncoming agent reaches the crossing at least this
     long after the ego has cleared it (a post-encroachment-time margin; the ego's clear
     time already includes accelerating through the turn)."""
     conservative_gap_factor: float = Field(default=1.5, ge=1.0, le=5.0)
     """Multiplies ``safe_gap_s`` when the user asks for conservative / careful driving."""
-    turn_accel_mps2: float = Field(default=1.5, gt=0.0, le=5.0)
+    turn_accel_mps2: float = Field(default=2.0, gt=0.0, le=5.0)
     """Acceleration the ego is assumed to use from its current speed when it goes."""
-    turn_speed_mps: float = Field(default=6.0, gt=0.0, le=20.0)
+    turn_speed_mps: float = Field(default=5.0, gt=0.0, le=20.0)
     """Speed cap assumed through the turn when estimating the ego's time to clear."""
     junction_attention_m: float = Field(default=70.0, gt=0.0, le=500.0)
     """The yield rule applies once the ego is this close to the stop line of its turn."""
@@ -46,15 +46,33 @@ class RulesConfig(_Frozen):
     """Range in which the nearest agent ahead in the ego's lane counts as its leader."""
     oncoming_heading_tol_rad: float = Field(default=0.8, gt=0.0, le=1.6)
     """Heading difference from exactly opposite within which an agent counts as oncoming."""
-    brake_margin_factor: float = Field(default=1.5, ge=1.0, le=5.0)
+    brake_margin_factor: float = Field(default=1.0, ge=1.0, le=5.0)
     """Ask for this much more than the kinematic need v^2 / 2d when choosing a braking
-    interval: the MPC weighs the bias against tracking and reaches it only partly."""
-    approach_turn_speed_mps: float = Field(default=7.0, gt=0.0, le=30.0)
+    interval (1: the MPC follows a braking bias to a stop since its per-stage bias)."""
+    approach_turn_speed_mps: float = Field(default=6.0, gt=0.0, le=30.0)
     """Approaching a turn, slow down to reach the stop line at no more than this speed."""
     stop_margin_m: float = Field(default=1.0, ge=0.0, le=10.0)
     """Stop this far before the stop line."""
     moving_speed_mps: float = Field(default=0.5, ge=0.0, le=5.0)
     """Below this an agent counts as stopped."""
+    commit_decel_mps2: float = Field(default=3.0, gt=0.0, le=10.0)
+    """A left turn that would need more than this to stop before the first oncoming lane
+    is committed: it clears the junction instead of stopping in the oncoming lanes."""
+    go_hysteresis_s: float = Field(default=0.5, ge=0.0, le=5.0)
+    """After a "go" decision a gap this much below ``safe_gap_s`` is still accepted, so
+    small changes in the estimates do not stop the ego again (no flapping)."""
+    replan_s: float = Field(default=2.5, gt=0.0, le=60.0)
+    """Time to the next decision the rules assume (the planner's ``period_s``): a stop at
+    the line is put off while it stays comfortable (``commit_decel_mps2``) after this
+    long at the current speed (braking now would stop the ego well short of it)."""
+    path_corridor_m: float = Field(default=0.8, ge=0.0, le=5.0)
+    """An agent counts as in the ego's path when its centre is within the half-widths plus
+    this of the ego's route candidate."""
+    path_ttc_s: float = Field(default=2.5, gt=0.0, le=20.0)
+    """An agent in the ego's path ahead with a time to collision below this: brake."""
+    commit_ttc_s: float = Field(default=1.5, gt=0.0, le=10.0)
+    """Threat in the path: below this time to collision an emergency brakes hard (and a
+    committed turn brakes at all)."""
 
 
 class OpenAIConfig(_Frozen):

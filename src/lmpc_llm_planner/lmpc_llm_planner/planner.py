@@ -271,16 +271,17 @@ class PlannerCore:
                    tokens_in: int, tokens_out: int) -> DecisionMeta:
         self._n += 1
         stamp_ms = int(round(scene.obs.stamp_s * 1000.0))
+        reported = self.config.fixed_latency_s
+        if reported is None and source == self.backend.name:
+            # a simulated reasoner (rules) declares its latency: its wall time depends
+            # on the machine's load and would make runs unrepeatable
+            reported = getattr(self.backend, "reported_latency_s", None)
         return DecisionMeta(
             decision_id=f"{stamp_ms}-{self._n}",
             seq=self._n,
             source=source,
             mode=mode,
-            latency_s=min(
-                self.config.fixed_latency_s if self.config.fixed_latency_s is not None
-                else latency_s,
-                600.0,
-            ),
+            latency_s=min(reported if reported is not None else latency_s, 600.0),
             tokens_in=tokens_in,
             tokens_out=tokens_out,
             ttl_s=self.config.ttl_s,

@@ -12,6 +12,7 @@ from typing import Mapping, Optional
 
 import numpy as np
 
+from lmpc_mpc.reference import route_path, route_progress
 from lmpc_msgs_py.messages import Lane, LaneLink, StopLine
 from lmpc_msgs_py.observation import Observation
 
@@ -57,57 +58,56 @@ def next_maneuver(
 ) -> Optional[Maneuver]:
     """The first junction connection on the route ahead of the ego, or None.
 
-    Uses ``ego.lane_id`` / ``ego.route_index`` to find the ego on
-    ``map.ego_route``; returns None when the ego is not on its route or no
-    connection lies within ``max_distance_m``.
+    The ego is placed on its route by projection onto the route polyline
+    (``lmpc_mpc.reference.route_progress``: every route lane, internal ones included,
+    searched from the bridge's monotone ``route_index``), not by SUMO's lane guess,
+    which inside a junction may name another connection's internal lane. Returns
+    None when the map has no route or no connection lies within ``max_distance_m``.
     """
-    route = obs.map.ego_route
-    ego = obs.ego
-    if ego.lane_id is None:
+    route = route_path(obs.map)
+    if route is None:
         return None
-    i = ego.route_index if ego.route_index < len(route) else -1
-    if i < 0 or route[i] != ego.lane_id:
-        if ego.lane_id not in route:
-            return None
-        i = route.index(ego.lane_id)
-    here = lanes.get(route[i])
+    s_ego = route_progress(obs.map, obs.ego)
+    if s_ego is None:
+        return None
+    ids = route.lane_ids
+    j = route.lane_at(s_ego)
+    here = lanes.get(ids[j])
     if here is None:
         return None
     inside = here.internal
-    # Walk back to the approach lane when already inside the junction.
-    start = i
-    while start > 0 and lanes.get(route[start], here).internal:
+    start = j
+    # walk back to the approach lane when already inside the junction
+    while start > 0 and (lanes.get(ids[start]) is None or lanes[ids[start]].internal):
         start -= 1
-    dist = 0.0 if inside else here.length_m - ego.lane_pos_m
-    j = start
-    for _ in range(MAX_SEARCH_LANES):
-        lane = lanes.get(route[j])
-        if lane is None or j + 1 >= len(route):
-            return None
-        link = _link_to(lane, route[j + 1])
-        if link is not None and not lane.internal:
-            pts = []
-            k = j + 1
-            while k < len(route) and route[k] in lanes and lanes[route[k]].internal:
-                pts.extend(lanes[route[k]].centerline)
-                k += 1
-            stop = next((s for s in obs.map.stop_lines if s.lane_id == lane.id), None)
-            if inside:
-                dist = -_progress_on(np.asarray(pts, dtype=float), ego.x_m, ego.y_m)
-            return Maneuver(
-                approach_lane_id=lane.id,
-                link=link,
-                path=np.asarray(pts, dtype=float).reshape(-1, 2),
-                dist_to_stop_line_m=dist,
-                inside_junction=inside,
-                stop_line=stop,
-                approach_yaw_rad=_end_yaw(lane),
-            )
-        if j > start or inside:
-            dist += lane.length_m
+    for k in range(start, min(len(ids) - 1, start + MAX_SEARCH_LANES)):
+        lane = lanes.get(ids[k])
+        if lane is None or lane.internal:
+            continue
+        link = _link_to(lane, ids[k + 1])
+        if link is None:
+            continue
+        stop_s = float(route.lane_start_m[k + 1])
+        dist = stop_s - s_ego
         if dist > max_distance_m:
             return None
-        j += 1
+        pts: list[tuple[float, float]] = []
+        m = k + 1
+        while m < len(ids) and ids[m] in lanes and lanes[ids[m]].internal:
+            pts.extend(lanes[ids[m]].centerline)
+            m += 1
+        if m < len(ids) and s_ego > float(route.lane_start_m[m]) and k >= start:
+            continue  # this junction is behind the ego already
+        stop = next((sl for sl in obs.map.stop_lines if sl.lane_id == lane.id), None)
+        return Maneuver(
+            approach_lane_id=lane.id,
+            link=link,
+            path=np.asarray(pts, dtype=float).reshape(-1, 2),
+            dist_to_stop_line_m=dist,
+            inside_junction=inside or dist < 0.0,
+            stop_line=stop,
+            approach_yaw_rad=_end_yaw(lane),
+        )
     return None
 
 

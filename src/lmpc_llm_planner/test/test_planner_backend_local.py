@@ -16,7 +16,7 @@ import pytest
 from lmpc_mpc import synthetic as syn
 
 from lmpc_llm_planner.backends import BackendError, make_backend
-from lmpc_llm_planner.backends.constrain import narrow_schema
+from lmpc_llm_planner.backends.constrain import compact_prompt, describe_schema, narrow_schema
 from lmpc_llm_planner.backends.local import (
     LocalBackend,
     default_model_available,
@@ -24,7 +24,7 @@ from lmpc_llm_planner.backends.local import (
 )
 from lmpc_llm_planner.backends.rules import RulesBackend
 from lmpc_llm_planner.config import LocalConfig, PlannerConfig
-from lmpc_llm_planner.planner import PlannerCore, build_request
+from lmpc_llm_planner.planner import build_request
 from lmpc_llm_planner.scene import build_scene
 from lmpc_llm_planner.validation import parse_decision
 
@@ -101,10 +101,18 @@ def test_narrowed_schema_offers_only_what_the_request_offers(left_turn_map, obs_
     assert enc["attention"]["items"]["enum"] == list(req.agent_ids)
     assert set(enc["agent_trajectories"]["properties"]) == set(req.agent_ids)
     assert enc["agent_trajectories"]["additionalProperties"] is False
-    assert enc["ego_trajectory"]["enum"] == [
-        i for i, c in enumerate(req.scene.ego_candidates) if c.lane_ids]
+    ego_enum = enc["ego_trajectory"]["enum"]
+    assert sorted(ego_enum) == [i for i, c in enumerate(req.scene.ego_candidates) if c.lane_ids]
     guide = schema["$defs"]["ActionGuidance"]["properties"]
-    assert guide["accel_interval"]["enum"] == list(range(len(mpc_config.accel_intervals_mps2)))
+    accel_enum = guide["accel_interval"]["enum"]
+    assert sorted(accel_enum) == list(range(len(mpc_config.accel_intervals_mps2)))
+    # Baseline first (a small model takes the first option): route, keep speed, straight.
+    assert ego_enum[0] == req.scene.route_candidate_id
+    assert accel_enum[0] == mpc_config.neutral_accel_index
+    assert guide["steer_interval"]["enum"][0] == mpc_config.neutral_steer_index
+    assert schema["$defs"]["WeightAdjustment"]["properties"]["safety"]["enum"][0] == "normal"
+    plain = narrow_schema(req, max_reasoning_chars=123, baseline_first=False)
+    assert plain["$defs"]["ActionGuidance"]["properties"]["accel_interval"]["enum"][0] == 0
     # The rules backend's answer conforms; an unknown id and a bad index do not.
     answer = json.loads(RulesBackend().complete(req).text)
     answer["reasoning"] = answer["reasoning"][:123]
@@ -125,6 +133,25 @@ def test_narrowing_without_agents_and_for_emergency(left_turn_map, obs_factory,
                     mpc_config, mode="emergency"), max_reasoning_chars=100)
     assert "ScenarioEncoding" not in emergency.get("$defs", {})
     assert "enum" in emergency["$defs"]["ActionGuidance"]["properties"]["steer_interval"]
+
+
+def test_compact_prompt_replaces_the_embedded_schema(left_turn_map, obs_factory,
+                                                     planner_config, mpc_config):
+    req = request_for(obs_factory(left_turn_map, agents=two_cars()), planner_config,
+                      mpc_config)
+    schema = narrow_schema(req, max_reasoning_chars=300)
+    compact = compact_prompt(req, schema)
+    # prompt.py embeds the schema verbatim; if that changes this test says so.
+    assert len(compact) < len(req.prompt) - 1000
+    assert describe_schema(schema) in compact and '"$defs"' not in compact
+    assert compact.split("Answer")[0] == req.prompt.split("Answer")[0]  # scene untouched
+    outline = describe_schema(schema)
+    assert outline.index('"reasoning"') < outline.index('"scenario_encoding"') < outline.index(
+        '"action_guidance"') < outline.index('"weight_adjustment"')
+    assert '"car1"?: 0|1' in outline and '"truck_7"|"car1"' in outline
+    assert '"accel_interval": 3|0|1|2|4|5' in outline
+    other = dataclasses.replace(req, prompt="no schema in here")
+    assert compact_prompt(other, schema) == "no schema in here"
 
 
 # -- construction errors --------------------------------------------------------------------
@@ -155,6 +182,7 @@ def local_backend():
 @needs_model
 def test_local_model_answers_schema_valid_json(local_backend, left_turn_map, obs_factory,
                                                planner_config, mpc_config):
+    # One real decision (~10-30 s on one loaded core: the prompt is ~1.1 k tokens).
     req = request_for(obs_factory(left_turn_map, agents=two_cars()), planner_config,
                       mpc_config)
     req = dataclasses.replace(req, deadline_s=60.0)
@@ -164,12 +192,12 @@ def test_local_model_answers_schema_valid_json(local_backend, left_turn_map, obs
     assert reply.ok, reply.error
     assert reply.tokens_in > 500 and 0 < reply.tokens_out <= LocalConfig().max_output_tokens
     obj = json.loads(reply.text)
+    assert list(obj) == ["reasoning", "scenario_encoding", "action_guidance",
+                         "weight_adjustment"]  # the pathway's order
     schema = narrow_schema(req, max_reasoning_chars=LocalConfig().max_reasoning_chars)
     assert conforms(obj, schema, schema["$defs"]) == []
     parsed = parse_decision(reply.text, request=req)
     assert parsed.error_kind not in SCHEMA_KINDS, parsed.message
-    # Greedy decoding with a fixed seed: the same prompt gives the same text.
-    assert local_backend.complete(req).text == reply.text
 
 
 @needs_model
@@ -179,15 +207,5 @@ def test_local_model_stops_at_the_deadline(local_backend, left_turn_map, obs_fac
                       mpc_config)
     t0 = time.perf_counter()
     reply = local_backend.complete(dataclasses.replace(req, deadline_s=0.05))
-    assert reply.error_kind == "timeout"
-    assert time.perf_counter() - t0 < 30.0  # stops at the first token past the deadline
-
-
-@needs_model
-def test_local_model_through_the_planner(local_backend, left_turn_map, obs_factory,
-                                         planner_config, mpc_config):
-    core = PlannerCore(cfg_with(planner_config, deadline_s=60.0), local_backend, mpc_config)
-    d = core.on_observation(obs_factory(left_turn_map, agents=two_cars()))
-    assert d is not None and d.source in ("llm:smollm2-135m", "fallback")
-    assert core.counters.backend_calls >= 1
-    assert not any(core.counters.errors[k] for k in SCHEMA_KINDS)
+    assert reply.error_kind == "timeout" and "prompt evaluation stopped" in reply.error
+    assert time.perf_counter() - t0 < 15.0  # one n_batch slice, not the whole prompt

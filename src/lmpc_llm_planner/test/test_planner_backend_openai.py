@@ -282,6 +282,10 @@ def test_key_never_sent_in_clear_to_a_remote_host():
 def test_openai_without_key_fails_at_start():
     with pytest.raises(BackendError, match="LMPC_OPENAI_API_KEY"):
         OpenAIBackend.from_env(OpenAIConfig(), {})
+    bad = "sk-\u2019quoted key"
+    with pytest.raises(BackendError, match="characters a header cannot carry") as exc:
+        OpenAIBackend.from_env(OpenAIConfig(), {"OPENAI_API_KEY": bad})
+    assert "quoted" not in str(exc.value)
 
 
 def test_endpoint_and_source_parsing():

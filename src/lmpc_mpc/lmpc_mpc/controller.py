@@ -8,9 +8,12 @@ newest applicable one wins. Without one the controller runs the paper's MPC
 baseline (normal weights, every agent in range attended, route reference,
 closest-heading predictions, zero bias).
 
-Fallbacks (RELIABILITY.md): a failed or over-budget solve uses the shifted
-previous plan for ``shifted_plan_steps`` steps, then brakes at
-``vehicle.safe_brake_mps2`` with zero steer; stale ego / agents brake at once.
+Fallbacks (RELIABILITY.md): a failed solve uses the shifted previous plan for
+``shifted_plan_steps`` steps, then brakes at ``vehicle.safe_brake_mps2`` with zero
+steer; stale ego / agents brake at once. A solve over the wall-time budget is a
+failure only in realtime operation (``realtime=True`` or ``enforce_time_budget`` in
+the config); in sync / benchmark runs it is counted (``over_budget``) and used, so the
+same observations give the same controls however loaded the machine is.
 """
 from __future__ import annotations
 
@@ -31,6 +34,7 @@ from lmpc_mpc.reference import (
     bezier_points,
     lane_at,
     route_candidate,
+    route_progress,
     timed_reference,
 )
 from lmpc_mpc.solver import MpcProblem, MpcSolver, Obstacle
@@ -66,6 +70,8 @@ class ControllerStats:
     shifted: int
     brakes: int
     stale_inputs: int
+    over_budget: int
+    """Successful solves slower than ``time_budget_s`` (wall); failures only in realtime."""
     mode: str
 
 
@@ -73,10 +79,15 @@ class MpcController:
     """LanguageMPC's low-level controller: one ``Control`` per observation."""
 
     def __init__(self, config: MpcConfig, vehicle: VehicleParams = DEFAULT_VEHICLE, *,
-                 solver: Optional[MpcSolver] = None) -> None:
+                 solver: Optional[MpcSolver] = None, realtime: Optional[bool] = None) -> None:
+        """``realtime``: enforce the solver's wall-time budget (None: the config's
+        ``enforce_time_budget``). Set it before the first solve: IPOPT's wall-time
+        option is compiled in."""
         self.config = config
         self.vehicle = vehicle
         self.solver = solver if solver is not None else MpcSolver(config, vehicle)
+        if realtime is not None:
+            self.solver.enforce_time_budget = bool(realtime)
         self._decisions: list[Decision] = []
         self._seq = 0
         self._u_prev: Optional[tuple[float, float]] = None
@@ -94,6 +105,9 @@ class MpcController:
         """Agent id -> (sim time built, lane id then, control points) of the baseline
         prediction curve (see ``_CANDIDATE_REUSE_S``)."""
         self._rebuilds_left = _REBUILDS_PER_STEP
+        self._route_s: Optional[tuple[int, float, float]] = None
+        """(id of the map, sim time, arc length) of the ego's last route progress: the
+        baseline reference starts there or later (monotone, see ``route_progress``)."""
         """Crossing agents the ego decided to pass ahead of -> sim time of the decision."""
         self.reference_path: Optional[np.ndarray] = None
         """(M, 2) the reference path of the last step (for the visual mirror)."""
@@ -124,7 +138,8 @@ class MpcController:
 
     def stats(self) -> ControllerStats:
         """Counters so far and the mode of the last control."""
-        return ControllerStats(mode=self._mode, **self._counts)
+        return ControllerStats(mode=self._mode, over_budget=self.solver.over_budget,
+                               **self._counts)
 
     def reset(self) -> None:
         """Forget decisions, plan and warm start (new episode)."""
@@ -134,6 +149,7 @@ class MpcController:
         self._plan_age = 0
         self._committed.clear()
         self._agent_curves.clear()
+        self._route_s = None
         self.solver.reset()
 
     # -- control -------------------------------------------------------------------------
@@ -175,8 +191,9 @@ class MpcController:
         self._counts["solver_failures"] += 1
         self._counts["fallbacks"] += 1
         self._plan_age += 1
-        if self._plan is not None and self._plan_age <= min(self.config.shifted_plan_steps,
-                                                             len(self._plan) - 1):
+        shift_limit = min(self.config.shifted_plan_steps,
+                          len(self._plan) - 1 if self._plan is not None else 0)
+        if self._plan is not None and self._plan_age <= shift_limit:
             self._counts["shifted"] += 1
             u_s = self._plan[self._plan_age]
             pred = self._plan_pred[self._plan_age:] if self._plan_pred is not None else None
@@ -221,7 +238,8 @@ class MpcController:
             elif bias[0] > hi:
                 ref_acc = max(bias[0], ref_acc)
         else:
-            cand = route_candidate(obs.map, ego, lookahead_m=cfg.lookahead_m)
+            cand = route_candidate(obs.map, ego, lookahead_m=cfg.lookahead_m,
+                                   progress_m=self._progress(obs))
             path = cand.sample(200)
             ref_id = None
             weights = cfg.weights_for(None)
@@ -276,8 +294,36 @@ class MpcController:
         problem = MpcProblem(x0=(ego.x_m, ego.y_m, ego.yaw_rad, ego.v_mps), u_prev=u_prev,
                              u_prev2=u_prev2, reference=ref.states,
                              reference_curvature_1pm=ref.curvature_1pm, weights=weights,
-                             bias=bias, obstacles=tuple(obstacles))
+                             bias=bias, bias_accel_mps2=self._bias_profile(
+                                 bias[0], ref.states[:, 3], min(v_limit, ref_v_cap)),
+                             obstacles=tuple(obstacles))
         return problem, tuple(a.id for a in agents[:slots]), ref_id
+
+    def _bias_profile(self, bias_mps2: float, ref_v_mps: np.ndarray,
+                      v_max_mps: float) -> Optional[np.ndarray]:
+        """Per control step, the acceleration bias: a braking bias while the reference
+        (braked at that rate) still moves, then the neutral interval's lower bound (a
+        gentle hold that still pulls a creeping car to rest); a speeding-up bias until
+        the reference reaches its top speed, then 0. Asking for -5 m/s^2 for all 3 s
+        from 3 m/s is infeasible (v >= 0): the quadratic cost then made the MPC spread
+        about -1 m/s^2 over the horizon instead of braking as asked."""
+        lo, hi = self.config.accel_intervals_mps2[self.config.neutral_accel_index]
+        if lo <= bias_mps2 <= hi:
+            return None
+        v_next = ref_v_mps[1:]
+        if bias_mps2 < lo:
+            return np.where(v_next > 1e-3, bias_mps2, min(lo, 0.0))
+        return np.where(v_next < v_max_mps - 0.1, bias_mps2, 0.0)
+
+    def _progress(self, obs: Observation) -> Optional[float]:
+        """The ego's monotone progress along its route (None: no route in the map)."""
+        prev = self._route_s
+        previous = None
+        if prev is not None and prev[0] == id(obs.map) and prev[1] <= obs.ego.stamp_s:
+            previous = prev[2]
+        s = route_progress(obs.map, obs.ego, previous_m=previous)
+        self._route_s = None if s is None else (id(obs.map), obs.ego.stamp_s, s)
+        return s
 
     def _baseline_curve(self, obs: Observation, ag: Agent) -> _Points:
         """The agent's closest-heading candidate, rebuilt when older than

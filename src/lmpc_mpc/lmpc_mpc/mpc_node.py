@@ -45,9 +45,18 @@ class MpcNode(LmpcNode):
             description="ego namespace ('' = single ego, topics under /lmpc)"))
         ego_id = self.get_parameter("ego_id").get_parameter_value().string_value
         self.ego_id = ego_id or None
+        self.declare_parameter("clock_mode", "", ParameterDescriptor(
+            description="the bridge's clock mode: 'realtime' enforces the solver's wall-time "
+                        "budget, 'sync' only counts overruns ('' = the config's "
+                        "enforce_time_budget)"))
         path = self.get_parameter("config_file").get_parameter_value().string_value
         self.config = load_mpc_config(path or None)
-        self.controller = MpcController(self.config)
+        clock_mode = self.get_parameter("clock_mode").get_parameter_value().string_value
+        if clock_mode not in ("", "sync", "realtime"):
+            raise MpcConfigError(f"parameter clock_mode must be '', 'sync' or 'realtime', "
+                                 f"got {clock_mode!r}")
+        realtime = None if clock_mode == "" else clock_mode == "realtime"
+        self.controller = MpcController(self.config, realtime=realtime)
         # build every compiled problem size now (~1.5 s), not inside the first steps
         self.controller.solver.warm_up()
         self._map: Optional[MapSnapshot] = None
@@ -209,7 +218,8 @@ class MpcNode(LmpcNode):
                                  {"mode": st.mode, "steps": st.steps,
                                   "solver_failures": st.solver_failures,
                                   "fallbacks": st.fallbacks, "shifted": st.shifted,
-                                  "brakes": st.brakes, "stale_inputs": st.stale_inputs})
+                                  "brakes": st.brakes, "stale_inputs": st.stale_inputs,
+                                  "over_budget": st.over_budget})
 
 
 def _sigterm(_signum: int, _frame: object) -> None:

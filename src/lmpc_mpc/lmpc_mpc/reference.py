@@ -140,6 +140,22 @@ class _Polyline:
         s = float(self.cum_m[i] + t[i] * seg[i])
         return s, math.sqrt(float(dist2[i])), math.atan2(float(d[i, 1]), float(d[i, 0]))
 
+    def project_window(self, x_m: float, y_m: float, lo_m: float, hi_m: float
+                       ) -> tuple[float, float]:
+        """(arc length, distance) of the closest point to (x, y) among the points with
+        arc length in ``[lo_m, hi_m]`` (clamped to the line)."""
+        lo = min(max(lo_m, 0.0), self.length_m)
+        hi = min(max(hi_m, lo), self.length_m)
+        if len(self.pts) == 1:
+            return 0.0, float(math.hypot(x_m - self.pts[0, 0], y_m - self.pts[0, 1]))
+        a, d, len2, seg = self._segments
+        t = np.clip(((x_m - a[:, 0]) * d[:, 0] + (y_m - a[:, 1]) * d[:, 1]) / len2, 0.0, 1.0)
+        s = np.clip(self.cum_m[:-1] + t * seg, lo, hi)
+        p = self.at(s)
+        dist2 = (p[:, 0] - x_m) ** 2 + (p[:, 1] - y_m) ** 2
+        i = int(np.argmin(dist2))
+        return float(s[i]), math.sqrt(float(dist2[i]))
+
     def project_many(self, xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Vectorised :meth:`project` of (M, 2) points: (arc lengths, distances)."""
         p = np.asarray(xy_m, dtype=float).reshape(-1, 2)
@@ -193,11 +209,28 @@ def _wrap(angle_rad: float) -> float:
 
 
 # --- map index (cached per snapshot) -----------------------------------------------------
+@dataclass(frozen=True)
+class RoutePath:
+    """The ego's whole route as one polyline: every lane of ``map.ego_route`` (internal
+    junction lanes included, in route order) chained centreline to centreline."""
+
+    line: _Polyline
+    lane_ids: tuple[str, ...]
+    lane_start_m: np.ndarray
+    """Arc length on ``line`` where each lane of ``lane_ids`` starts."""
+
+    def lane_at(self, s_m: float) -> int:
+        """Index into ``lane_ids`` of the lane at arc length ``s_m``."""
+        return int(np.clip(np.searchsorted(self.lane_start_m, s_m, side="right") - 1, 0,
+                           len(self.lane_ids) - 1))
+
+
 @dataclass
 class _MapIndex:
     lanes: dict[str, Lane]
     lines: dict[str, _Polyline]
     by_edge: dict[str, list[Lane]] = field(default_factory=dict)
+    route: Optional[RoutePath] = None
 
 
 _CACHE: "OrderedDict[tuple[int, int, float], tuple[MapSnapshot, _MapIndex]]" = OrderedDict()
@@ -213,11 +246,84 @@ def _index(map_: MapSnapshot) -> _MapIndex:
     by_edge: dict[str, list[Lane]] = {}
     for ln in map_.lanes:
         by_edge.setdefault(ln.edge_id, []).append(ln)
-    idx = _MapIndex(lanes, lines, by_edge)
+    idx = _MapIndex(lanes, lines, by_edge, _route_path(map_, lanes, lines))
     _CACHE[key] = (map_, idx)  # holding the map keeps id() unique while cached
     while len(_CACHE) > 4:
         _CACHE.popitem(last=False)
     return idx
+
+
+def _route_path(map_: MapSnapshot, lanes: dict[str, Lane], lines: dict[str, _Polyline]
+                ) -> Optional[RoutePath]:
+    ids: list[str] = []
+    for lid in map_.ego_route:
+        if lid not in lanes or (ids and ids[-1] == lid):
+            continue
+        if ids:
+            # insert the internal lane of the connection when the route skips it
+            for lk in lanes[ids[-1]].successors:
+                if lk.to_lane == lid and lk.via_lane and lk.via_lane in lanes \
+                        and lk.via_lane != ids[-1]:
+                    ids.append(lk.via_lane)
+                    break
+        ids.append(lid)
+    if not ids:
+        return None
+    pts: list[np.ndarray] = []
+    starts: list[int] = []
+    for lid in ids:
+        starts.append(sum(len(p) for p in pts))
+        pts.append(lines[lid].pts)
+    line = _Polyline.of(np.concatenate(pts, axis=0))
+    # dedupe may drop a joint point: map every lane's first vertex to the deduped line
+    first = [np.asarray(lines[lid].pts[0]) for lid in ids]
+    lane_start = np.array([line.project(float(p[0]), float(p[1]))[0] for p in first])
+    lane_start[0] = 0.0
+    lane_start = np.maximum.accumulate(lane_start)
+    return RoutePath(line, tuple(ids), lane_start)
+
+
+def route_path(map: MapSnapshot) -> Optional[RoutePath]:
+    """The ego's route as one polyline (cached per map snapshot), or None without one."""
+    return _index(map).route
+
+
+ROUTE_BACK_SLACK_M = 0.5
+"""Route progress may go back this little (projection noise while stopped)."""
+ROUTE_SEARCH_AHEAD_M = 30.0
+"""Without a previous progress, the ego is looked for on its route from the start of
+its route lane (``ego.route_index``) to this far past that lane's end (a junction)."""
+
+
+def route_progress(map: MapSnapshot, ego: EgoState, *,
+                   previous_m: Optional[float] = None) -> Optional[float]:
+    """Arc length of the ego on its route polyline (:func:`route_path`), or None.
+
+    Robust off the path: the ego is projected onto the route polyline itself (all
+    route lanes, internal ones included), not onto SUMO's lane guess (inside a
+    junction SUMO may name another internal lane). Monotone: with ``previous_m`` the
+    search window is ``[previous - slack, previous + reach]``, so the progress never
+    jumps back to an earlier part of the route; without it, the window starts at the
+    bridge's ``route_index`` lane (which only moves forward).
+    """
+    route = route_path(map)
+    if route is None:
+        return None
+    j = -1
+    if 0 <= ego.route_index < len(map.ego_route):
+        lid = map.ego_route[ego.route_index]
+        if lid in route.lane_ids:
+            j = route.lane_ids.index(lid)
+    hint_lo = float(route.lane_start_m[j]) if j >= 0 else 0.0
+    hint_hi = (float(route.lane_start_m[j + 1]) if j + 1 < len(route.lane_ids)
+               else route.line.length_m) + ROUTE_SEARCH_AHEAD_M if j >= 0 else math.inf
+    if previous_m is None or previous_m < hint_lo - 10.0:
+        lo, hi = hint_lo - 1.0, hint_hi
+    else:
+        lo = previous_m - ROUTE_BACK_SLACK_M
+        hi = previous_m + 5.0 + 1.0 * max(ego.v_mps, 0.0)
+    s, _ = route.line.project_window(ego.x_m, ego.y_m, lo, hi)
+    return s if previous_m is None else max(s, previous_m - ROUTE_BACK_SLACK_M)
 
 
 def _locate(idx: _MapIndex, x_m: float, y_m: float, yaw_rad: float,
@@ -361,9 +467,28 @@ def candidates_for_pose(map: MapSnapshot, *, x_m: float, y_m: float, yaw_rad: fl
     return out[:3]
 
 
-def route_candidate(map: MapSnapshot, ego: EgoState, *, lookahead_m: float = 60.0) -> Candidate:
-    """The baseline reference: the ego's route (``map.ego_route``) from its position."""
+def route_candidate(map: MapSnapshot, ego: EgoState, *, lookahead_m: float = 60.0,
+                    progress_m: Optional[float] = None) -> Candidate:
+    """The baseline reference: the ego's route (``map.ego_route``) from its position.
+
+    The ego is placed on the route polyline by :func:`route_progress` (``progress_m``
+    if the caller tracks it), so off its lane (e.g. stopped inside the junction on a
+    lane SUMO attributes to another connection) the reference still rejoins the
+    route ahead and never points back along it.
+    """
     idx = _index(map)
+    route_line = idx.route
+    if route_line is not None:
+        s0 = progress_m if progress_m is not None else route_progress(map, ego)
+        if s0 is not None:
+            j = route_line.lane_at(s0)
+            line = route_line.line
+            if line.length_m - s0 < lookahead_m:
+                # extend the route straight (paths leaving the snapshot are extended)
+                tail = line.at([line.length_m + lookahead_m])
+                line = _Polyline.of(np.vstack([line.pts, tail]))
+            cps = _control_points(line, s0, ego.x_m, ego.y_m, lookahead_m)
+            return Candidate(0, cps, "follow the route", route_line.lane_ids[j:])
     route = [lid for lid in map.ego_route if lid in idx.lanes]
     if not route:
         cands = candidates_for_pose(map, x_m=ego.x_m, y_m=ego.y_m, yaw_rad=ego.yaw_rad,

@@ -45,9 +45,9 @@ from lmpc_mpc.config import MpcConfig, ResolvedWeights
 
 NX = 8
 NU = 2
-NREF = 5
+NREF = 6  # per stage: x, y, yaw, v, curvature of the reference; accel bias A_hat_a,k
 NOBS = 6
-N_W = 14  # pos, v, yaw, steer_trk, s_a, s_d, g_a, g_d, l_a, l_d, saf, bias_a, bias_d, lat
+N_W = 14  # pos, v, yaw, steer_trk, s_a, s_d, g_a, g_d, l_a, l_d, saf, (unused), bias_d, lat
 _RELEVANCE_MARGIN_M = 6.0
 """An obstacle farther than this beyond ``d_hat`` from every guess of the ego at a stage
 is left out of that stage (its safety term is zero there; see ``MpcSolver._pack``)."""
@@ -96,6 +96,11 @@ class MpcProblem:
     weights: ResolvedWeights
     bias: tuple[float, float] = (0.0, 0.0)
     """A_hat = (accel_mps2, steer_rad)."""
+    bias_accel_mps2: Optional[np.ndarray] = None
+    """(N,) the acceleration bias per control step (None: ``bias[0]`` at every step).
+    A braking bias can only hold while the car moves: the controller sets it to 0 once
+    the reference (braked at the bias rate) has stopped, so the MPC brakes at the
+    asked rate instead of spreading a smaller deceleration over the horizon."""
     obstacles: tuple[Obstacle, ...] = ()
 
 
@@ -216,7 +221,7 @@ class MpcSolver:
         p_st = [ca.SX.sym(f"p{k}", n_stage_p) for k in range(n + 1)]
         xs = [ca.SX.sym(f"x{k}", NX) for k in range(n + 1)]
         us = [ca.SX.sym(f"u{k}", NU) for k in range(n)]
-        (w_pos, w_v, w_yaw, w_str, s_a, s_d, g_a, g_d, l_a, l_d, w_saf, b_a, b_d, w_lat) = \
+        (w_pos, w_v, w_yaw, w_str, s_a, s_d, g_a, g_d, l_a, l_d, w_saf, _, b_d, w_lat) = \
             [p_w[i] for i in range(N_W)]
         rate = veh.max_steer_rate_radps * dt
         w_vars: list[ca.SX] = []
@@ -270,7 +275,8 @@ class MpcSolver:
                 kap = p_st[k + 1][4]
                 d_ref = ca.atan(veh.wheelbase_m * kap)
                 cost += w_str * (u[1] - d_ref) ** 2
-                cost += s_a * (u[0] - b_a) ** 2 + s_d * (u[1] - b_d) ** 2
+                # the acceleration bias is per stage (p_st[k][5], see MpcProblem)
+                cost += s_a * (u[0] - p_st[k][5]) ** 2 + s_d * (u[1] - b_d) ** 2
                 cost += g_a * (u[0] - x[4]) ** 2 + g_d * (u[1] - x[5]) ** 2
                 cost += l_a * (u[0] - 2 * x[4] + x[6]) ** 2 + l_d * (u[1] - 2 * x[5] + x[7]) ** 2
             g += path_g
@@ -500,7 +506,7 @@ class MpcSolver:
               w.action.w_accel, w.action.w_steer,
               w.smoothness.w_g_accel, w.smoothness.w_g_steer,
               w.smoothness.w_l_accel, w.smoothness.w_l_steer,
-              w.safety.w_saf, prob.bias[0], prob.bias[1], cfg.lateral_weight_factor)
+              w.safety.w_saf, 0.0, prob.bias[1], cfg.lateral_weight_factor)
         # unwrap the reference yaw next to the current yaw so 1 - cos never sees a jump
         yaw_ref = np.unwrap(np.concatenate([[prob.x0[2]], ref[:, 2]]))[1:]
         packed, n_slots = self._pack(prob, ref, yaw_ref)
@@ -512,6 +518,14 @@ class MpcSolver:
         stage[:, 2] = yaw_ref
         stage[:, 3] = ref[:, 3]
         stage[:, 4] = kap
+        if prob.bias_accel_mps2 is None:
+            stage[:, 5] = prob.bias[0]
+        else:
+            b_a = np.asarray(prob.bias_accel_mps2, dtype=float).ravel()
+            if b_a.shape != (n,):
+                raise MpcInputError(f"bias_accel_mps2 must be ({n},), got {b_a.shape}")
+            stage[:n, 5] = b_a
+            stage[n, 5] = b_a[-1]
         if packed is None:
             obs = stage[:, NREF:].reshape(n + 1, n_slots, NOBS)
             obs[:] = 0.0

@@ -27,10 +27,12 @@ from lmpc_msgs_py.observation import Observation
 LANE_W_M = 3.2
 
 
-def _line(x0: float, y0: float, x1: float, y1: float, n: int = 2) -> tuple[tuple[float, float],
-                                                                           ...]:
-    return tuple((float(x), float(y)) for x, y in zip(np.linspace(x0, x1, n),
-                                                       np.linspace(y0, y1, n)))
+_Pts = tuple[tuple[float, float], ...]
+
+
+def _line(x0: float, y0: float, x1: float, y1: float, n: int = 2) -> _Pts:
+    xs, ys = np.linspace(x0, x1, n), np.linspace(y0, y1, n)
+    return tuple((float(x), float(y)) for x, y in zip(xs, ys))
 
 
 def _arc(cx: float, cy: float, r: float, a0_rad: float, a1_rad: float,

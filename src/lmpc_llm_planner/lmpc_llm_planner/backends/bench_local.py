@@ -2,9 +2,12 @@
 
     python -m lmpc_llm_planner.backends.bench_local [--n 10] [--threads 1]
 
-Per prompt: latency, tokens in / out, whether the first answer passed validation
-(``parse_decision``) and, if not, why. Prints one JSON line per prompt and a summary
-(median / p95 latency, share valid on the first answer). The scenes are synthetic
+Per prompt: latency, tokens in / out (and the SmolLM2 token count of the full,
+uncompacted prompt), whether the first answer passed validation (``parse_decision``)
+and, if not, why, and whether it agrees with the ``rules`` backend (ego trajectory,
+accel interval) as a crude quality proxy. Prints one JSON line per prompt and a summary
+(median / p95 latency, share valid on the first answer, agreement, and whether the
+first prompt asked again gives the identical text). The scenes are synthetic
 (``lmpc_mpc.synthetic.four_way_junction``): ego approaching a junction turning left,
 right or straight, with 0-4 other vehicles at varied places and speeds.
 """
@@ -21,6 +24,7 @@ from lmpc_mpc import synthetic as syn
 from lmpc_mpc.config import load_mpc_config
 
 from lmpc_llm_planner.backends.local import LocalBackend
+from lmpc_llm_planner.backends.rules import RulesBackend
 from lmpc_llm_planner.config import LocalConfig, load_planner_config
 from lmpc_llm_planner.planner import build_request
 from lmpc_llm_planner.scene import build_scene
@@ -65,6 +69,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(json.dumps({"model": str(backend.model_path),
                       "load_s": round(time.perf_counter() - t_load, 3)}))
     rows = []
+    rules = RulesBackend()
+    first_req = None
+    first_text = None
     for i, sc in enumerate(scenes(args.n)):
         map_ = syn.four_way_junction(arm_m=100.0, ego_turn=sc["turn"])
         ego = syn.ego_state(x_m=1.6, y_m=sc["ego_y_m"], yaw_rad=NORTH, v_mps=sc["ego_v_mps"],
@@ -77,12 +84,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         req = build_request(scene, config=pcfg.model_copy(update={"deadline_s": 120.0}),
                             mpc_config=mcfg, instruction=sc["instruction"])
         reply = backend.complete(req)
+        if first_req is None:
+            first_req, first_text = req, reply.text
         parsed = parse_decision(reply.text or "", request=req) if reply.ok else None
+        ref = json.loads(rules.complete(req).text or "{}")
+        ans = parsed.wire if parsed and parsed.success else None
+        agree = bool(ans) and (
+            ans.scenario_encoding.ego_trajectory == ref["scenario_encoding"]["ego_trajectory"]
+            and ans.action_guidance.accel_interval == ref["action_guidance"]["accel_interval"])
+        full_tokens = len(backend.tokenize(backend.chat_prompt(req).text))
         row = {
             "i": i, "turn": sc["turn"], "agents": len(agents),
             "latency_s": round(reply.latency_s, 3), "tokens_in": reply.tokens_in,
             "tokens_out": reply.tokens_out, "prompt_chars": len(req.prompt),
-            "estimate": req.tokens_estimate,
+            "estimate": req.tokens_estimate, "tokens_full_prompt": full_tokens,
+            "agrees_with_rules": agree,
             "valid": bool(parsed and parsed.success),
             "error": reply.error_kind or (parsed.error_kind if parsed else None),
             "text": (reply.text or "")[:400],
@@ -97,9 +113,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         "valid_first_answer": sum(r["valid"] for r in rows) / len(rows),
         "tokens_in_median": statistics.median(r["tokens_in"] for r in rows),
         "tokens_out_median": statistics.median(r["tokens_out"] for r in rows),
-        "chars_per_token": round(sum(r["prompt_chars"] for r in rows)
-                                 / max(1, sum(r["tokens_in"] for r in rows)), 2),
+        "tokens_full_prompt_median": statistics.median(r["tokens_full_prompt"] for r in rows),
+        "chars_per_token_full_prompt": round(sum(r["prompt_chars"] for r in rows)
+                                             / max(1, sum(r["tokens_full_prompt"] for r in rows)),
+                                             2),
+        "agrees_with_rules": sum(r["agrees_with_rules"] for r in rows) / len(rows),
     }
+    if first_req is not None:
+        summary["repeat_identical"] = backend.complete(first_req).text == first_text
     print(json.dumps({"summary": summary}))
     return 0
 

@@ -11,7 +11,12 @@ validation then refuses. :func:`narrow_schema` closes those holes for one reques
 - ``agent_trajectories``: optional properties, one per offered agent, each an
   ``enum`` of that agent's candidate indices (no other keys);
 - ``accel_interval`` / ``steer_interval``: an ``enum`` of the configured indices;
-- ``reasoning``: ``maxLength`` capped (a small model otherwise never closes it).
+- ``reasoning``: ``maxLength`` capped (a small model otherwise never closes it);
+- (``baseline_first``) each ``enum`` lists the baseline choice first: the route
+  candidate, the interval holding 0 (keep speed / straight), the ``normal`` weight
+  level. Order means nothing to the schema, but a small grammar-constrained model tends
+  to take the first option it is offered (SmolLM2-135M does, every time): with this
+  order an undecided model drives the baseline instead of braking hard to the right.
 
 Integer ranges are written as ``enum`` because every JSON-schema-to-grammar converter
 supports it (``minimum`` / ``maximum`` are not everywhere). The answer is still
@@ -28,8 +33,22 @@ from lmpc_llm_planner.backends.base import DecisionRequest
 REASONING_FIELD = "reasoning"
 
 
-def _int_enum(n: int) -> dict[str, Any]:
-    return {"type": "integer", "enum": list(range(max(n, 0)))}
+def _int_enum(n: int, first: Optional[int] = None) -> dict[str, Any]:
+    values = list(range(max(n, 0)))
+    if first is not None and first in values:
+        values.remove(first)
+        values.insert(0, first)
+    return {"type": "integer", "enum": values}
+
+
+def neutral_index(intervals: tuple[tuple[float, float], ...]) -> Optional[int]:
+    """The interval holding 0 (else the one whose midpoint is nearest to 0)."""
+    if not intervals:
+        return None
+    for i, (lo, hi) in enumerate(intervals):
+        if lo <= 0.0 <= hi:
+            return i
+    return min(range(len(intervals)), key=lambda i: abs(sum(intervals[i]) / 2.0))
 
 
 def _find_def(schema: Mapping[str, Any], title: str) -> Optional[dict[str, Any]]:
@@ -42,12 +61,16 @@ def _find_def(schema: Mapping[str, Any], title: str) -> Optional[dict[str, Any]]
     return None
 
 
-def _narrow_encoding(enc: dict[str, Any], request: DecisionRequest) -> None:
+def _narrow_encoding(enc: dict[str, Any], request: DecisionRequest, *,
+                     baseline_first: bool) -> None:
     props = enc.get("properties")
     if not isinstance(props, dict):
         return
     scene = request.scene
     ego_ok = [i for i, c in enumerate(scene.ego_candidates) if c.lane_ids]
+    if baseline_first and scene.route_candidate_id in ego_ok:
+        ego_ok.remove(scene.route_candidate_id)
+        ego_ok.insert(0, scene.route_candidate_id)
     props["ego_trajectory"] = {"type": "integer", "enum": ego_ok or [scene.route_candidate_id]}
     ids = list(scene.agent_ids)
     if ids:
@@ -59,20 +82,36 @@ def _narrow_encoding(enc: dict[str, Any], request: DecisionRequest) -> None:
         props["attention"] = {"type": "array", "items": {"type": "string"}, "maxItems": 0}
     props["agent_trajectories"] = {
         "type": "object",
-        "properties": {v.id: _int_enum(len(v.candidates)) for v in scene.agents},
+        "properties": {
+            v.id: _int_enum(len(v.candidates), v.closest_heading_id if baseline_first else None)
+            for v in scene.agents
+        },
         "additionalProperties": False,
     }
 
 
-def _narrow_guidance(guide: dict[str, Any], request: DecisionRequest) -> None:
+def _narrow_guidance(guide: dict[str, Any], request: DecisionRequest, *,
+                     baseline_first: bool) -> None:
     props = guide.get("properties")
     if not isinstance(props, dict):
         return
-    props["accel_interval"] = _int_enum(len(request.accel_intervals_mps2))
-    props["steer_interval"] = _int_enum(len(request.steer_intervals_rad))
+    accel, steer = request.accel_intervals_mps2, request.steer_intervals_rad
+    props["accel_interval"] = _int_enum(len(accel),
+                                        neutral_index(accel) if baseline_first else None)
+    props["steer_interval"] = _int_enum(len(steer),
+                                        neutral_index(steer) if baseline_first else None)
 
 
-def narrow_schema(request: DecisionRequest, *, max_reasoning_chars: int) -> dict[str, Any]:
+def _normal_first(weights: dict[str, Any]) -> None:
+    for prop in (weights.get("properties") or {}).values():
+        levels = prop.get("enum") if isinstance(prop, dict) else None
+        if isinstance(levels, list) and "normal" in levels:
+            prop["enum"] = ["normal"] + [lv for lv in levels if lv != "normal"]
+
+
+def narrow_schema(
+    request: DecisionRequest, *, max_reasoning_chars: int, baseline_first: bool = True
+) -> dict[str, Any]:
     """``request.json_schema`` narrowed to what ``request`` offers (see the module doc).
 
     Never raises on an unexpected schema shape: the parts it does not recognise are
@@ -87,10 +126,13 @@ def narrow_schema(request: DecisionRequest, *, max_reasoning_chars: int) -> dict
         )
     enc = _find_def(schema, "ScenarioEncoding")
     if enc is not None:
-        _narrow_encoding(enc, request)
+        _narrow_encoding(enc, request, baseline_first=baseline_first)
     guide = _find_def(schema, "ActionGuidance")
     if guide is not None:
-        _narrow_guidance(guide, request)
+        _narrow_guidance(guide, request, baseline_first=baseline_first)
+    weights = _find_def(schema, "WeightAdjustment")
+    if weights is not None and baseline_first:
+        _normal_first(weights)
     return schema
 
 

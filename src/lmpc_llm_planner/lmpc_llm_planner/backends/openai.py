@@ -55,6 +55,8 @@ MAX_BODY_BYTES = 4_000_000
 MAX_ERROR_EXCERPT = 300
 SCHEMA_NAME = "lmpc_decision"
 SOURCE_PATTERN = re.compile(r"[^\w.:/\-]")
+KEY_CHARS = re.compile(r"^[\x21-\x7e]+$")
+"""Printable ASCII without spaces: what an ``Authorization`` header can carry."""
 KEY_REQUIRED_HOSTS = ("api.openai.com",)
 """Hosts that answer nothing without a key: fail at start-up, not on every call."""
 
@@ -149,7 +151,14 @@ class OpenAIBackend:
         self.model = model or config.model
         self.endpoint = parse_endpoint(base_url or config.base_url)
         self.name = source_name(self.model)
-        self._api_key = api_key or None
+        self._api_key = (api_key or "").strip() or None
+        if self._api_key and not KEY_CHARS.match(self._api_key):
+            # Checked here so a bad key never reaches http.client (whose error would
+            # quote part of the header); the message does not quote it either.
+            raise BackendError(
+                "openai backend: the API key holds characters a header cannot carry "
+                "(non-ASCII or whitespace); check the key variable's value"
+            )
         if self._api_key and self.endpoint.scheme == "http" and not self.endpoint.loopback \
                 and not config.allow_plain_http_key:
             raise BackendError(

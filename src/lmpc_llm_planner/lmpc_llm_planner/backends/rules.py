@@ -30,6 +30,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
+import numpy as np
+
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE
 
 from lmpc_llm_planner.backends.base import BackendReply, DecisionRequest
@@ -70,6 +72,9 @@ class Conflict:
     """When the agent reaches the crossing (constant speed)."""
     t_clear_s: float
     """When the ego would have cleared it (accelerating from its speed)."""
+    zone_start_m: float
+    """Arc length along the junction path where the agent's lane (its box width plus a
+    margin) begins: the ego must not stop beyond it."""
 
     @property
     def gap_s(self) -> float:
@@ -99,6 +104,11 @@ class RulesBackend:
     """The ``rules`` backend: deterministic, same inputs -> same text."""
 
     name = "rules"
+    reported_latency_s = 0.0
+    """The latency its decisions carry (a stand-in for an instant reasoner): the measured
+    wall time (logged as ``measured_latency_s``) depends on the machine's load, and a
+    value above one step would shift when a decision takes effect, so runs would not
+    repeat. ``fixed_latency_s`` in the planner config still overrides it."""
 
     def __init__(self, config: Optional[RulesConfig] = None) -> None:
         self.config = config or RulesConfig()
@@ -115,33 +125,42 @@ class RulesBackend:
 
     # -- reasoning ------------------------------------------------------------------------
     def decide(self, request: DecisionRequest) -> dict[str, Any]:
-        """The full answer object (all stages, or the emergency variant)."""
+        """The full answer object (all stages, or the emergency variant).
+
+        An emergency request is answered by the same rules (a left turn that has
+        committed keeps going, one that waits keeps waiting; the answer never flaps
+        to "keep my speed" while stopped); only a threat ahead in the ego's own path
+        makes it brake hard."""
         cfg = self.config
         scene = request.scene
         accel = request.accel_intervals_mps2
         steer = request.steer_intervals_rad
+        emergency = request.mode == "emergency"
         plan = _Plan(accel_index=_neutral(accel), steer_index=_neutral(steer))
         careful = bool(request.instruction and CONSERVATIVE_WORDS.search(request.instruction))
         safe_gap_s = cfg.safe_gap_s * (cfg.conservative_gap_factor if careful else 1.0)
         if careful:
             plan.weights["safety"] = "high"
             plan.notes.append("The user asked for careful driving, so I keep larger gaps.")
-
-        if request.mode == "emergency":
-            self._emergency(scene, plan, accel)
-            return {
-                "reasoning": " ".join(plan.notes),
-                "action_guidance": _guidance(plan),
-                "weight_adjustment": dict(plan.weights),
-            }
+        if emergency:
+            plan.weights["safety"] = "high"
+        previous_go = request.previous is not None and request.previous.accel_bias_mps2 >= 0.0
 
         ego = scene.obs.ego
         self._attend_defaults(scene, plan)
-        yielding = self._left_turn_rule(scene, plan, accel, steer, safe_gap_s)
-        if not yielding:
-            self._following_rule(scene, plan, accel, safe_gap_s)
+        turn = self._left_turn_rule(scene, plan, accel, steer, safe_gap_s, previous_go,
+                                    emergency)
+        if turn != "yield":
+            self._path_rule(scene, plan, accel, emergency=emergency,
+                            committed=turn == "commit")
         if not plan.speed_set:
             self._go(scene, plan, accel)
+        if emergency:
+            return {
+                "reasoning": ("Emergency check. " + " ".join(plan.notes)).strip(),
+                "action_guidance": _guidance(plan),
+                "weight_adjustment": dict(plan.weights),
+            }
         attention = list(plan.attention)
         encoding = {
             "ego_trajectory": scene.route_candidate_id,
@@ -191,16 +210,20 @@ class RulesBackend:
         accel: tuple[tuple[float, float], ...],
         steer: tuple[tuple[float, float], ...],
         safe_gap_s: float,
-    ) -> bool:
-        """Rule 3; True while the ego yields."""
+        previous_go: bool,
+        emergency: bool,
+    ) -> str:
+        """Rule 3 (gap acceptance of a left turn): "none" (no such turn ahead), "go",
+        "yield" (stop before the stop line / the first oncoming lane) or "commit"
+        (too far in to stop before the oncoming lanes: clear them briskly)."""
         cfg = self.config
         obs = scene.obs
         man = next_maneuver(obs, scene.lanes, max_distance_m=cfg.junction_attention_m)
         if man is None or man.dist_to_stop_line_m > cfg.junction_attention_m:
-            return False
+            return "none"
         yield_dirs = ("r", "R") if obs.map.left_hand_traffic else ("l", "L")
         if man.direction not in yield_dirs:
-            return False
+            return "none"
         turn = "right" if obs.map.left_hand_traffic else "left"
         ego = obs.ego
         half_len = 0.5 * ego.length_m
@@ -211,52 +234,91 @@ class RulesBackend:
                 conflicts.append(c)
         if man.inside_junction:
             plan.steer_index = _steer_for_path(man, steer)
-        if not conflicts:
-            plan.notes.append(
-                f"I turn {turn} at the junction ahead; no oncoming traffic conflicts, so I go."
-            )
-            self._approach_turn(man, ego.v_mps, plan, accel)
-            return False
-        unsafe = [c for c in conflicts if c.gap_s < safe_gap_s]
         for c in conflicts:
             plan.attend(c.view, "oncoming, conflicts with my turn")
-        if not unsafe:
+        # the ego's front to the first oncoming lane it must cross (the conflict zone)
+        zone_m = min((c.zone_start_m for c in conflicts), default=None)
+        front_to_zone = None if zone_m is None else \
+            man.dist_to_stop_line_m + zone_m - half_len
+        can_stop = front_to_zone is not None and front_to_zone > 0.0 and (
+            ego.v_mps < cfg.moving_speed_mps
+            or ego.v_mps ** 2 / (2.0 * front_to_zone) <= cfg.commit_decel_mps2)
+        # hysteresis: once going, a gap that shrinks a little (estimates are noisy)
+        # does not stop the ego again
+        margin = safe_gap_s - (cfg.go_hysteresis_s if previous_go else 0.0)
+        unsafe = [c for c in conflicts if c.gap_s < margin]
+        if conflicts and not can_stop and (man.inside_junction or ego.v_mps > 1.0):
+            # inside (or too close to stop before) the oncoming lanes: never stop there
+            plan.accel_index = _accel_index(accel, cfg.turn_accel_mps2)
+            plan.speed_set = True
+            plan.weights["safety"] = "high"
             plan.notes.append(
-                f"I turn {turn}; the oncoming gap is {min(c.gap_s for c in conflicts):.1f} s "
-                f"(safe from {safe_gap_s:.1f} s), so I turn now."
+                f"I am committed to the {turn} turn (I cannot stop before the oncoming "
+                "lane any more), so I clear the junction briskly and keep a safe distance."
             )
-            self._approach_turn(man, ego.v_mps, plan, accel)
-            return False
+            return "commit"
+        if not unsafe:
+            if conflicts:
+                plan.notes.append(
+                    f"I turn {turn}; the oncoming gap is {min(c.gap_s for c in conflicts):.1f} "
+                    f"s beyond my clearing time (enough from {margin:.1f} s), so I turn now."
+                )
+            else:
+                plan.notes.append(
+                    f"I turn {turn} at the junction ahead; no oncoming traffic conflicts, "
+                    "so I go."
+                )
+            if man.inside_junction or man.dist_to_stop_line_m < half_len + 2.0:
+                plan.accel_index = _accel_index(accel, cfg.turn_accel_mps2)
+                plan.speed_set = True
+            else:
+                self._approach_turn(man, ego.v_mps, plan, accel)
+            return "go"
         worst = min(unsafe, key=lambda c: (c.gap_s, c.view.id))
         vmax_brake = max(-lo for lo, _ in accel)
-        # Where to stop: before the stop line, or (past it) before the crossing.
+        # where to stop: before the stop line, or (past it) before the first oncoming lane
         targets = []
-        if man.dist_to_stop_line_m > 0.0:
-            targets.append((man.dist_to_stop_line_m - half_len - cfg.stop_margin_m, "stop line"))
-        crossing_d = man.dist_to_stop_line_m + worst.ego_s_m
-        targets.append((crossing_d - half_len - 2.0, "crossing point"))
+        if man.dist_to_stop_line_m - half_len - cfg.stop_margin_m > 0.0:
+            targets.append((man.dist_to_stop_line_m - half_len - cfg.stop_margin_m,
+                            "stop line"))
+        if front_to_zone is not None:
+            targets.append((front_to_zone - cfg.stop_margin_m, "oncoming lane"))
+        # the farthest the ego may stop: before the first oncoming lane it must cross
+        d_limit = front_to_zone - cfg.stop_margin_m if front_to_zone is not None else None
         for d_stop, where in targets:
             need = _required_decel(ego.v_mps, d_stop, cfg.moving_speed_mps)
-            if need is not None and need <= vmax_brake:
-                plan.accel_index = _brake_index(
-                    accel, need * cfg.brake_margin_factor, ego.v_mps < cfg.moving_speed_mps
-                )
-                plan.speed_set = True
-                plan.weights.update(tracking="low", action="high", safety="high")
-                plan.notes.append(
-                    f"I turn {turn} and must yield to oncoming {worst.view.id}: it reaches the "
-                    f"crossing in {worst.t_agent_s:.1f} s, I would need {worst.t_clear_s:.1f} s "
-                    f"to clear it (gap {worst.gap_s:.1f} s, safe from {safe_gap_s:.1f} s). "
-                    f"I slow down and stop before the {where} "
-                    f"({max(d_stop, 0.0):.0f} m, needs {need:.1f} m/s2) and wait for a gap."
-                )
-                return True
+            if need is None or need > vmax_brake:
+                continue
+            plan.speed_set = True
+            plan.weights.update(tracking="low", action="high", safety="high")
+            reason = (
+                f"I turn {turn} and must yield to oncoming {worst.view.id}: it reaches the "
+                f"crossing in {worst.t_agent_s:.1f} s, I would need {worst.t_clear_s:.1f} s "
+                f"to clear it (gap {worst.gap_s:.1f} s, enough from {margin:.1f} s)."
+            )
+            v = ego.v_mps
+            if where == "stop line" and not emergency and v >= cfg.moving_speed_mps and \
+                    d_stop - v * cfg.replan_s > v * v / (2.0 * cfg.commit_decel_mps2) + 5.0:
+                # far from the line: braking to a stop now would stop well short of it.
+                # Keep the speed until the next decision (stopping then is still
+                # comfortable); the MPC itself yields to the attended oncoming cars.
+                plan.accel_index = _neutral(accel)
+                plan.weights.update(tracking="normal")
+                plan.notes.append(reason + f" I keep my speed for now and will stop before "
+                                  f"the {where} ({d_stop:.0f} m) if the gap stays too small.")
+                return "yield"
+            plan.accel_index = _stop_index(accel, v, d_stop, d_limit, cfg.moving_speed_mps)
+            plan.notes.append(reason + f" I stop before the {where} ({max(d_stop, 0.0):.0f} m,"
+                              f" needs {need:.1f} m/s2) and wait for a gap.")
+            return "yield"
+        plan.accel_index = _accel_index(accel, cfg.turn_accel_mps2)
+        plan.speed_set = True
         plan.weights["safety"] = "high"
         plan.notes.append(
             f"I am too close to stop before the crossing with {worst.view.id}; I commit to the "
-            f"{turn} turn and keep a safe distance."
+            f"{turn} turn, clear it briskly and keep a safe distance."
         )
-        return False
+        return "commit"
 
     def _approach_turn(
         self, man: Maneuver, v_mps: float, plan: _Plan, accel: tuple[tuple[float, float], ...]
@@ -277,7 +339,7 @@ class RulesBackend:
                 plan.weights["action"] = "high"
                 plan.notes.append(f"I slow down to {v_turn:.0f} m/s for the turn.")
                 return
-        if v_mps >= 0.8 * v_turn:
+        if v_mps >= v_turn - 0.5:
             plan.accel_index = _neutral(accel)
             plan.speed_set = True
             plan.weights["action"] = "high"
@@ -320,54 +382,49 @@ class RulesBackend:
             d_clear, v0_mps=ego.v_mps, accel_mps2=cfg.turn_accel_mps2,
             vmax_mps=cfg.turn_speed_mps,
         )
-        return Conflict(view, cr.ego_s_m, t_agent, t_clear)
+        zone = cr.ego_s_m - 0.5 * ag.width_m - CLEAR_MARGIN_M
+        return Conflict(view, cr.ego_s_m, t_agent, t_clear, zone)
 
-    def _following_rule(
-        self, scene: Scene, plan: _Plan, accel: tuple[tuple[float, float], ...], safe_gap_s: float
+    def _path_rule(
+        self, scene: Scene, plan: _Plan, accel: tuple[tuple[float, float], ...], *,
+        emergency: bool, committed: bool
     ) -> None:
-        """Rule 4: brake for an agent ahead on a collision course."""
-        threats = [
-            v for v in scene.agents
-            if v.kin.longitudinal_m > 0.0 and v.kin.ttc_s is not None and v.kin.ttc_s < safe_gap_s
-        ]
+        """Rule 4: brake for an agent in the ego's own path ahead (within the corridor of
+        its route candidate) that it closes in on. Traffic that only passes near the
+        path (an oncoming car in its own lane) is the turn rule's business."""
+        cfg = self.config
+        ego = scene.obs.ego
+        path = _route_path(scene)
+        threats = []
+        for v in scene.agents:
+            k = v.kin
+            if k.longitudinal_m <= 0.0 or k.ttc_s is None:
+                continue
+            if path is not None:
+                corridor = 0.5 * (ego.width_m + v.agent.width_m) + cfg.path_corridor_m
+                if _distance_to_path(path, v.agent.x_m, v.agent.y_m) > corridor:
+                    continue
+            limit = cfg.path_ttc_s if not committed else cfg.commit_ttc_s
+            if k.ttc_s < limit:
+                threats.append(v)
         if not threats:
             return
         worst = min(threats, key=lambda v: (v.kin.ttc_s, v.id))
         plan.attend(worst, f"closing in, {worst.kin.ttc_s:.1f} s to collision")
         need = worst.kin.closing_speed_mps**2 / (2.0 * max(worst.kin.gap_m - 2.0, 0.5))
-        plan.accel_index = _brake_index(accel, need * self.config.brake_margin_factor, False)
+        if emergency and worst.kin.ttc_s is not None and worst.kin.ttc_s < cfg.commit_ttc_s:
+            plan.accel_index = _strongest_brake(accel)
+            plan.weights.update(tracking="low", action="high")
+        else:
+            plan.accel_index = _brake_index(accel, need * self.config.brake_margin_factor,
+                                            False)
         plan.speed_set = True
         plan.weights["safety"] = "high"
         plan.notes.append(
-            f"{worst.id} is {worst.kin.gap_m:.0f} m {worst.kin.relation} and I close in at "
-            f"{worst.kin.closing_speed_mps:.1f} m/s, so I brake to keep a safe distance."
+            f"{worst.id} is {worst.kin.gap_m:.0f} m {worst.kin.relation} in my path and I "
+            f"close in at {worst.kin.closing_speed_mps:.1f} m/s, so I brake to keep a safe "
+            "distance."
         )
-
-    def _emergency(
-        self, scene: Scene, plan: _Plan, accel: tuple[tuple[float, float], ...]
-    ) -> None:
-        threats = sorted(
-            (v for v in scene.agents if v.kin.ttc_s is not None),
-            key=lambda v: (v.kin.ttc_s, v.id),
-        )
-        ahead = [v for v in threats if v.kin.longitudinal_m > 0.0]
-        plan.weights.update(safety="high")
-        if ahead:
-            w = ahead[0]
-            plan.accel_index = _strongest_brake(accel)
-            plan.weights.update(tracking="low", action="high")
-            plan.notes.append(
-                f"Emergency: {w.id} is {w.kin.gap_m:.0f} m {w.kin.relation}, "
-                f"{w.kin.ttc_s:.1f} s to collision. I brake hard."
-            )
-        elif threats:
-            plan.notes.append(
-                f"Emergency: {threats[0].id} approaches from {threats[0].kin.relation}; braking "
-                "would not help, I keep my speed and maximise safety."
-            )
-        else:
-            plan.notes.append("Emergency check tripped but no agent is on a collision course now; "
-                              "I keep my speed with high safety weight.")
 
     def _go(self, scene: Scene, plan: _Plan, accel: tuple[tuple[float, float], ...]) -> None:
         ego = scene.obs.ego
@@ -400,6 +457,55 @@ def _neutral(intervals: tuple[tuple[float, float], ...]) -> int:
 
 def _strongest_brake(intervals: tuple[tuple[float, float], ...]) -> int:
     return min(range(len(intervals)), key=lambda i: (_mid(intervals[i]), i))
+
+
+def _accel_index(intervals: tuple[tuple[float, float], ...], want_mps2: float) -> int:
+    """The mildest accelerating interval whose midpoint reaches ``want_mps2`` (else the
+    strongest one)."""
+    positive = sorted((i for i, iv in enumerate(intervals) if _mid(iv) > 0.0),
+                      key=lambda i: _mid(intervals[i]))
+    if not positive:
+        return _neutral(intervals)
+    for i in positive:
+        if _mid(intervals[i]) >= 0.9 * want_mps2:
+            return i
+    return positive[-1]
+
+
+def _route_path(scene: Scene) -> Optional[np.ndarray]:
+    """(n, 2) points of the ego's route candidate (None without candidates)."""
+    if not scene.ego_candidates:
+        return None
+    return scene.ego_candidates[scene.route_candidate_id].sample(60)
+
+
+def _distance_to_path(path: np.ndarray, x_m: float, y_m: float) -> float:
+    """Distance from (x, y) to the polyline ``path``."""
+    a = path[:-1]
+    d = np.diff(path, axis=0)
+    len2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
+    t = np.clip(((x_m - a[:, 0]) * d[:, 0] + (y_m - a[:, 1]) * d[:, 1]) / len2, 0.0, 1.0)
+    ex = x_m - a[:, 0] - t * d[:, 0]
+    ey = y_m - a[:, 1] - t * d[:, 1]
+    return float(np.sqrt(np.min(ex * ex + ey * ey)))
+
+
+def _stop_index(intervals: tuple[tuple[float, float], ...], v_mps: float, d_stop_m: float,
+                d_limit_m: Optional[float], still_mps: float) -> int:
+    """The braking interval whose midpoint stops the ego (v^2 / 2a: the MPC brakes at the
+    bias until it stands) nearest to ``d_stop_m`` without passing ``d_limit_m`` (nor the
+    stop point by more than 1 m without a limit); stopped: the mildest (hold)."""
+    braking = [i for i, iv in enumerate(intervals) if _mid(iv) < 0.0]
+    if not braking:
+        return _neutral(intervals)
+    if v_mps < still_mps:
+        return max(braking, key=lambda i: (_mid(intervals[i]), -i))
+    limit = max(d_stop_m + 1.0, d_limit_m if d_limit_m is not None else d_stop_m + 1.0)
+    fits = [i for i in braking if v_mps ** 2 / (-2.0 * _mid(intervals[i])) <= limit]
+    if not fits:
+        return min(braking, key=lambda i: (_mid(intervals[i]), i))
+    return min(fits, key=lambda i: (abs(v_mps ** 2 / (-2.0 * _mid(intervals[i])) - d_stop_m),
+                                    i))
 
 
 def _mildest_accel(intervals: tuple[tuple[float, float], ...]) -> int:
