@@ -7,6 +7,7 @@ STAMP := $(VENV)/.lmpc-installed
 # DDS discovery stays on this machine unless the caller opened it up (README: multi-machine).
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
+LLAMA_CMAKE_ARGS ?= -DGGML_NATIVE=OFF -DGGML_AVX2=ON -DGGML_FMA=ON -DGGML_F16C=ON
 PKGS := src/lmpc_msgs_py src/lmpc_mpc src/lmpc_bridge src/lmpc_llm_planner
 SETUPS := pyproject.toml $(foreach p,$(PKGS),$(p)/setup.py)
 
@@ -18,6 +19,9 @@ $(STAMP): $(SETUPS)
 	@test -x $(PY) || { command -v $(PYTHON) >/dev/null && $(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV); }
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet $(foreach p,$(PKGS),-e $(p)) -e '.[test]'
+	# The embedded LLM (llama.cpp, built from source once; pip caches the wheel). A native
+	# build dies with "Illegal instruction" on some CPUs: build for a portable AVX2 target.
+	CMAKE_ARGS="$(LLAMA_CMAKE_ARGS)" $(PY) -m pip install --quiet -e 'src/lmpc_llm_planner[local]'
 	@touch $@
 
 demo: install

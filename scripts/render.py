@@ -27,6 +27,7 @@ entry points other scripts (the benchmark) call.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import sys
@@ -352,18 +353,26 @@ def junction_outlines(net_file: Optional[Path]) -> list[np.ndarray]:
     """Junction polygons from the SUMO net file (empty when it is missing / unreadable)."""
     if net_file is None or not Path(net_file).is_file():
         return []
+    stat = Path(net_file).stat()
+    return list(_junction_outlines(str(net_file), stat.st_mtime_ns, stat.st_size))
+
+
+@functools.lru_cache(maxsize=8)
+def _junction_outlines(net_file: str, mtime_ns: int, size: int) -> tuple[np.ndarray, ...]:
+    """Cached per file version: a run picture draws the map several times."""
+    del mtime_ns, size  # cache key only
     import sumolib
 
     try:
         net = sumolib.net.readNet(str(net_file), withInternal=True)
     except Exception:  # noqa: BLE001 - the outline is decoration; lanes still get drawn
-        return []
+        return ()
     out = []
     for node in net.getNodes():
         shape = node.getShape()
         if shape and len(shape) >= 3 and node.getType() != "dead_end":
             out.append(np.asarray([(p[0], p[1]) for p in shape], dtype=float))
-    return out
+    return tuple(out)
 
 
 # --- drawing ---------------------------------------------------------------------------
@@ -784,27 +793,33 @@ def _gif_frames(run: RunData, *, every_k: int, width_px: int) -> list[Any]:
     if indices[-1] != len(rec.steps) - 1:
         indices.append(len(rec.steps) - 1)  # the last frame shows how it ended
     frames = []
+    trail.set_animated(True)
+    text.set_animated(True)
+    # the map is drawn once; each frame restores it and draws only what moves (blitting)
+    fig.canvas.draw()
+    background = fig.canvas.copy_from_bbox(fig.bbox)
     dynamic: list[Any] = []
     for idx in indices:
         for artist in dynamic:
             artist.remove()
-        dynamic = []
         step = rec.steps[idx]
-        n_patches, n_texts = len(ax.patches), len(ax.texts)
+        n_patches, n_texts, n_lines = len(ax.patches), len(ax.texts), len(ax.lines)
         _draw_agents(ax, step, run.attended(step), labels=True)
         _draw_ego(ax, step, run.vehicle)
-        dynamic = list(ax.patches[n_patches:]) + list(ax.texts[n_texts:])
-        trail.set_data(xy[: idx + 1, 0], xy[: idx + 1, 1])
         status = ""
         if idx == len(rec.steps) - 1 and rec.outcome != "running":
             status = f"   [{rec.outcome}]"
             _mark_collision(ax, rec)
-            dynamic += ax.lines[-1:] if rec.outcome == "collision" else []
+        dynamic = (list(ax.patches[n_patches:]) + list(ax.texts[n_texts:])
+                   + list(ax.lines[n_lines:]))
+        trail.set_data(xy[: idx + 1, 0], xy[: idx + 1, 1])
         text.set_text(f"t = {step.t_s:5.1f} s   v = {step.v_mps:4.1f} m/s   "
                       f"a = {step.applied_accel_mps2:+4.1f} m/s²   "
                       f"mode {step.control_mode or '-'}{status}\n"
                       + _decision_text(run, step))
-        fig.canvas.draw()
+        fig.canvas.restore_region(background)
+        for artist in (trail, *sorted(dynamic, key=lambda a: a.get_zorder()), text):
+            ax.draw_artist(artist)
         rgba = np.asarray(fig.canvas.buffer_rgba())
         image = Image.fromarray(rgba[..., :3].copy())
         frames.append(image.quantize(colors=128, method=Image.Quantize.MEDIANCUT,
@@ -835,7 +850,7 @@ def plot_oc_bars(summary: dict[str, Any], out: Path, *, dpi: int = 150) -> Path:
                 methods.append(method)
     methods.sort(key=lambda m: (m != "mpc", m))
     width = 0.8 / max(len(methods), 1)
-    fig, ax = plt.subplots(figsize=(max(4.0, 1.6 * len(names) * max(len(methods), 1) / 2 + 2),
+    fig, ax = plt.subplots(figsize=(max(5.5, 0.8 * len(names) * max(len(methods), 1) + 2),
                                     4.2))
     top = 0.0
     for j, method in enumerate(methods):
@@ -860,7 +875,10 @@ def plot_oc_bars(summary: dict[str, Any], out: Path, *, dpi: int = 150) -> Path:
         ax.bar_label(bars, labels=labels, fontsize=7, padding=2)
         top = max([top, *heights])
     ax.set_xticks(range(len(names)))
-    ax.set_xticklabels([n.upper() for n in names])
+    scenes = [next((a.get("scenes") for a in families[n].values() if a.get("scenes")), None)
+              for n in names]
+    ax.set_xticklabels([n.upper() + (f"\n({k} scenes)" if k else "")
+                        for n, k in zip(names, scenes)])
     ax.set_ylabel("overall cost O.C. (lower is better)")
     ax.set_ylim(0, top * 1.35 if top > 0 else 1.0)
     ax.set_title("Mean overall cost per scenario family (C = collisions, F = fails)",

@@ -120,7 +120,8 @@ class LocalConfig(_Frozen):
     n_threads: int = Field(default=1, ge=1, le=256)
     """CPU threads for generation and prompt evaluation (1 leaves a core to the MPC)."""
     n_ctx: int = Field(default=4096, ge=512, le=32768)
-    """Context window in tokens: prompt (~1.5-2.3 k SmolLM2 tokens) + answer."""
+    """Context window in tokens: prompt (~0.9-1.2 k SmolLM2 tokens compacted, 1.4-1.6 k
+    with the schema, for 0-4 agents; ~70 more per agent, 20 agents ~2.3 k) + answer."""
     n_batch: int = Field(default=128, ge=16, le=8192)
     """Prompt tokens per evaluation step; the deadline is checked between steps."""
     compact_schema: bool = True

@@ -180,10 +180,12 @@ def local_backend():
 
 
 @needs_model
+@pytest.mark.slow
 def test_local_model_answers_schema_valid_json(local_backend, left_turn_map, obs_factory,
                                                planner_config, mpc_config):
-    # One real decision (~10-30 s on one loaded core: the prompt is ~1.1 k tokens).
-    req = request_for(obs_factory(left_turn_map, agents=two_cars()), planner_config,
+    # One real decision: ~1 k prompt tokens on one core, 15-50 s on this shared machine
+    # (marked slow: `-m "not slow"` leaves it out).
+    req = request_for(obs_factory(left_turn_map, agents=two_cars()[:1]), planner_config,
                       mpc_config)
     req = dataclasses.replace(req, deadline_s=60.0)
     t0 = time.perf_counter()

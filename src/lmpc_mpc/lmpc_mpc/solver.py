@@ -53,6 +53,11 @@ _RELEVANCE_MARGIN_M = 6.0
 is left out of that stage (its safety term is zero there; see ``MpcSolver._pack``)."""
 _RELEVANCE_SPEED_MPS = 3.0
 """Speed added to the guesses' speed when judging relevance (``d_hat`` grows with v)."""
+_BEHIND_RHO = 2.5
+"""Lateral stretch of the safety zone of an agent behind the ego (the side clearance is
+``1 / _BEHIND_RHO`` as effective): with the plain ellipse a follower closing in made the
+ego swerve off its lane while braking (usi seed 6); a car behind in the next lane
+(3.2 m over) stays outside the zone."""
 _TOL = 1e-3
 """NLP tolerance (scaled KKT error; FATROP and IPOPT). 1e-3 m / 1e-3 m/s^2 is far below
 what a 0.1 s control step can use; 1e-4 costs one more iteration (5 -> 6 median)."""
@@ -391,7 +396,10 @@ class MpcSolver:
         rows[:, :, 0:2] = xy
         rows[:, :, 2] = gap_k
         rows[:, :, 3] = head
-        rows[:, :, 4] = np.maximum(d_hat_ref / lat_clear, 1.0)
+        # behind the ego the zone is wide (rho >= _BEHIND_RHO): a follower closing in can
+        # only be answered along the road; a sideways escape off the lane is no answer
+        rho = np.maximum(d_hat_ref / lat_clear, 1.0)
+        rows[:, :, 4] = np.where(ahead | virtual, rho, np.maximum(rho, _BEHIND_RHO))
         rows[:, :, 5] = 1.0
         return rows
 

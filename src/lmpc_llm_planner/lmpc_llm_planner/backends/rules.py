@@ -44,6 +44,9 @@ CONSERVATIVE_WORDS = re.compile(r"\b(careful|carefully|conservative|conservative
 CROSSING_MISS_M = 4.0
 """An agent's ray passing the ego's path farther than this does not cross it."""
 CLEAR_MARGIN_M = 1.0
+_GO_ZONE_M = 8.0
+"""With a safe gap and the front this close to the stop line, the ego turns briskly
+(accelerating) instead of holding its approach speed."""
 
 
 def travel_time_s(dist_m: float, *, v0_mps: float, accel_mps2: float, vmax_mps: float) -> float:
@@ -268,7 +271,7 @@ class RulesBackend:
                     f"I turn {turn} at the junction ahead; no oncoming traffic conflicts, "
                     "so I go."
                 )
-            if man.inside_junction or man.dist_to_stop_line_m < half_len + 2.0:
+            if man.inside_junction or man.dist_to_stop_line_m < half_len + _GO_ZONE_M:
                 plan.accel_index = _accel_index(accel, cfg.turn_accel_mps2)
                 plan.speed_set = True
             else:
@@ -290,7 +293,10 @@ class RulesBackend:
             if need is None or need > vmax_brake:
                 continue
             plan.speed_set = True
-            plan.weights.update(tracking="low", action="high", safety="high")
+            # tracking stays "normal": the MPC's reference brakes with the bias anyway, and
+            # a "low" tracking weight let the safety term push the ego sideways off its
+            # lane when an oncoming car came near (usi seed 6)
+            plan.weights.update(action="high", safety="high")
             reason = (
                 f"I turn {turn} and must yield to oncoming {worst.view.id}: it reaches the "
                 f"crossing in {worst.t_agent_s:.1f} s, I would need {worst.t_clear_s:.1f} s "
@@ -303,7 +309,6 @@ class RulesBackend:
                 # Keep the speed until the next decision (stopping then is still
                 # comfortable); the MPC itself yields to the attended oncoming cars.
                 plan.accel_index = _neutral(accel)
-                plan.weights.update(tracking="normal")
                 plan.notes.append(reason + f" I keep my speed for now and will stop before "
                                   f"the {where} ({d_stop:.0f} m) if the gap stays too small.")
                 return "yield"
@@ -339,7 +344,9 @@ class RulesBackend:
                 plan.weights["action"] = "high"
                 plan.notes.append(f"I slow down to {v_turn:.0f} m/s for the turn.")
                 return
-        if v_mps >= v_turn - 0.5:
+        # at about the turn speed, hold it: an accelerating bias lasts until the next
+        # decision (``replan_s``) and would arrive too fast to stop for a late gap
+        if v_mps + _mid(accel[_mildest_accel(accel)]) * cfg.replan_s >= v_turn + 1.0:
             plan.accel_index = _neutral(accel)
             plan.speed_set = True
             plan.weights["action"] = "high"
