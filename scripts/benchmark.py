@@ -25,7 +25,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
-METHODS = ("mpc", "lmpc-rules")
+METHODS = ("mpc", "lmpc-rules", "lmpc-local", "lmpc-openai", "lmpc-replay")
 COLUMNS = ("family", "seed", "method", "outcome", "collision", "fail", "time_s", "ineff",
            "pen_acc", "pen_dist", "overall_cost", "decisions", "fallbacks", "steps",
            "solve_ms_median", "solve_ms_p99", "compute_ms_median", "compute_ms_p99", "wall_s",

@@ -822,7 +822,7 @@ def _gif_frames(run: RunData, *, every_k: int, width_px: int) -> list[Any]:
             ax.draw_artist(artist)
         rgba = np.asarray(fig.canvas.buffer_rgba())
         image = Image.fromarray(rgba[..., :3].copy())
-        frames.append(image.quantize(colors=128, method=Image.Quantize.MEDIANCUT,
+        frames.append(image.quantize(colors=128, method=Image.Quantize.FASTOCTREE,
                                      dither=Image.Dither.NONE))
     plt.close(fig)
     return frames

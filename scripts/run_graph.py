@@ -146,9 +146,16 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     ap.add_argument("--scene", type=Path,
                     help="scene description (YAML) on your own SUMO network, instead of "
                          "--scenario/--seed (README 'Your own network')")
-    ap.add_argument("--planner", choices=["rules", "none", "mock"], default="rules",
-                    help="rules: the deterministic reasoner; none: the MPC baseline alone; "
+    ap.add_argument("--planner", choices=["rules", "openai", "local", "replay", "none", "mock"],
+                    default="rules",
+                    help="rules: the deterministic reasoner; openai: an OpenAI-compatible "
+                         "endpoint (LMPC_OPENAI_BASE_URL, LMPC_OPENAI_MODEL, "
+                         "LMPC_OPENAI_API_KEY);\n"
+                         "local: SmolLM2-135M in llama.cpp; replay: a recorded decision log "
+                         "(--planner-config names it);\nnone: the MPC baseline alone; "
                          "mock: the mock LLM node playing --mock-script")
+    ap.add_argument("--planner-config", type=Path,
+                    help="planner YAML (default: the packaged config/planner.yaml)")
     ap.add_argument("--mock-script", type=Path, help="scripted decisions for --planner mock")
     ap.add_argument("--clock", choices=["sync", "realtime"], default="sync")
     ap.add_argument("--run-dir", type=Path,
@@ -169,18 +176,24 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
 
 def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, object]]:
     with_planner = args.planner != "none"
+    llm = args.planner in ("openai", "local", "replay")
     params: dict[str, dict[str, object]] = {
         "bridge": {
             "scenario": args.scenario, "seed": args.seed, "clock_mode": args.clock,
             "wait_for_planner": with_planner and args.clock == "sync",
             "max_time_s": args.max_time_s, "run_dir": str(run_dir),
+            # an LLM call may take its whole deadline (local model: tens of seconds)
+            "planner_timeout_s": 180.0 if llm else 30.0,
         },
         "mpc": {"use_sim_time": True},
     }
     if args.scene is not None:
         params["bridge"]["scene_file"] = str(args.scene.resolve())
-    if args.planner == "rules":
-        params["planner"] = {"use_sim_time": True, "backend": "rules", "run_dir": str(run_dir)}
+    if args.planner not in ("none", "mock"):
+        params["planner"] = {"use_sim_time": True, "backend": args.planner,
+                             "run_dir": str(run_dir)}
+        if args.planner_config:
+            params["planner"]["config_file"] = str(args.planner_config.resolve())
     elif args.planner == "mock":
         params["mock_llm"] = {"use_sim_time": True, "script_file": str(args.mock_script.resolve())}
     return params
