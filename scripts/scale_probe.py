@@ -104,7 +104,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     scene_yaml = work / "scale.yaml"
     scene_yaml.write_text(
         f"name: scale\nnet: {net_file.resolve()}\nseed: 1\nwarmup_s: {args.warmup_s}\n"
-        f"max_time_s: 3600\nbackground: {{period_s: {args.period_s}, end_s: 3600, seed: 1,"
+        f"max_time_s: 3600\nbackground: {{period_s: {args.period_s}, "
+        f"end_s: {args.warmup_s + args.steps * 0.1 + 60:.0f}, seed: 1,"
         f" min_distance_m: 300}}\n"
         f"ego: {{start: {{edge: '{a}', pos_m: 5}}, to_edge: '{b}'}}\n")
     print("building the scene (randomTrips)...", flush=True)

@@ -270,8 +270,12 @@ def _random_trips(net_file: Path, out: Path, bg: BackgroundSpec) -> Path:
            "--trip-attributes", 'departLane="best" departSpeed="max"']
     env = dict(os.environ, SUMO_HOME=str(sumo.SUMO_HOME))
     env["PATH"] = str(Path(sumo.SUMO_HOME) / "bin") + os.pathsep + env.get("PATH", "")
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env,
-                          check=False)
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env,
+                              check=False)
+    except subprocess.TimeoutExpired:
+        raise SceneError("randomTrips.py took over 600 s: ask for fewer background trips "
+                         "(larger background.period_s or smaller end_s)") from None
     if proc.returncode != 0 or not out.is_file():
         raise SceneError(f"randomTrips.py failed ({proc.returncode}) for background traffic: "
                          f"{(proc.stderr or proc.stdout).strip()[-800:]}")
