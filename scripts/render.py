@@ -80,6 +80,11 @@ _METHOD_COLOURS = {"mpc": "#8c8c8c", "lmpc-rules": "#1f5fd6"}
 _EXTRA_COLOURS = ("#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf")
 
 
+_GRAPH_PLANNERS = {"none": "mpc (graph)", "rules": "lmpc-rules (graph)",
+                   "mock": "mock LLM (graph)"}
+"""run_graph.py ``--planner`` values as method labels."""
+
+
 class RenderError(RuntimeError):
     """A picture cannot be made from what was given (missing file, bad record, bad option)."""
 
@@ -188,11 +193,12 @@ def load_run(run_dir: Path, *, work_dir: Optional[Path] = None) -> RunData:
     if work_dir is None:
         work_dir = cache if cache.is_dir() else Path(tempfile.mkdtemp(prefix="lmpc-render-"))
     snapshot, scene = scene_map(record.family, record.seed, work_dir=work_dir)
-    method = str(episode.get("method") or episode.get("planner") or "")
+    method = str(episode.get("method") or "")
     if not method:
         summary = Path(run_dir) / "summary.json"
         if summary.is_file():
-            method = str(json.loads(summary.read_text()).get("planner", ""))
+            planner = str(json.loads(summary.read_text()).get("planner", ""))
+            method = _GRAPH_PLANNERS.get(planner, planner)
     return RunData(record=record, map=snapshot,
                    decisions=read_decision_log(Path(run_dir) / "decisions.jsonl"),
                    method=method, net_file=Path(scene.net_file))
@@ -548,11 +554,6 @@ def render_scene(family: str, seed: int, *, out: Path, work_dir: Optional[Path] 
     return _save(fig, out, dpi=dpi)
 
 
-def _short(text: str, limit: int) -> str:
-    text = " ".join(text.split())
-    return text if len(text) <= limit else text[: limit - 1] + "…"
-
-
 def _save(fig: Figure, out: Path, *, dpi: int) -> Path:
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -739,8 +740,6 @@ def render_gif(run: RunData, *, out: Path, every_k: int = 3, fps: float = 8.0,
     comes out above ``max_bytes`` it is rendered again with half the frames and a
     smaller canvas (up to three times), so the result stays small.
     """
-    from PIL import Image
-
     rec = run.record
     if not rec.steps:
         raise RenderError("the record has no steps to draw")
@@ -849,7 +848,7 @@ def plot_oc_bars(summary: dict[str, Any], out: Path, *, dpi: int = 150) -> Path:
             if method not in methods:
                 methods.append(method)
     methods.sort(key=lambda m: (m != "mpc", m))
-    width = 0.8 / max(len(methods), 1)
+    width = min(0.8 / max(len(methods), 1), 0.3)  # one family: no slab-wide bars
     fig, ax = plt.subplots(figsize=(max(5.5, 0.8 * len(names) * max(len(methods), 1) + 2),
                                     4.2))
     top = 0.0
@@ -875,6 +874,7 @@ def plot_oc_bars(summary: dict[str, Any], out: Path, *, dpi: int = 150) -> Path:
         ax.bar_label(bars, labels=labels, fontsize=7, padding=2)
         top = max([top, *heights])
     ax.set_xticks(range(len(names)))
+    ax.set_xlim(-0.6, len(names) - 0.4)
     scenes = [next((a.get("scenes") for a in families[n].values() if a.get("scenes")), None)
               for n in names]
     ax.set_xticklabels([n.upper() + (f"\n({k} scenes)" if k else "")

@@ -8,7 +8,8 @@ route with a small pure-pursuit follower (a probe, not the MPC). Prints:
 - ``load``: wall seconds of ``SumoSim.reset_scene`` (SUMO start + net parse +
   map build + warm-up excluded) and of the map build alone, edges, map lanes and
   the encoded ``MapSnapshot`` size;
-- ``observation``: per step, the wall time of the bridge's observation work
+- ``observation`` (a 1,500 veh/h stream on the ego's route puts traffic around it):
+  per step, the wall time of the bridge's observation work
   (reading the context subscription, histories, route progress, signals —
   ``SumoSim._refresh`` — plus building the ``Observation``), median / p99, and
   the number of vehicles in the simulation.
@@ -101,9 +102,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
               flush=True)
         make_big_net(net_file, iterations=args.iterations, seed=3)
     a, b = (args.from_edge, args.to_edge) if args.from_edge else pick_long_route(net_file)
+    # A dense stream on the ego's own route, so the ego drives in traffic (randomTrips
+    # alone spreads the vehicles thinly over a big net).
+    stream = work / "stream.rou.xml"
+    stream.write_text(
+        f'<routes><flow id="stream" from="{a}" to="{b}" begin="0" end="{args.warmup_s + 600}"'
+        f' vehsPerHour="1500" departLane="best" departSpeed="max"/></routes>\n')
     scene_yaml = work / "scale.yaml"
     scene_yaml.write_text(
         f"name: scale\nnet: {net_file.resolve()}\nseed: 1\nwarmup_s: {args.warmup_s}\n"
+        f"routes: [{stream.name}]\n"
         f"max_time_s: 3600\nbackground: {{period_s: {args.period_s}, "
         f"end_s: {args.warmup_s + args.steps * 0.1 + 60:.0f}, seed: 1,"
         f" min_distance_m: 300}}\n"

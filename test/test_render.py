@@ -108,7 +108,7 @@ def _stub_run(short_run: render.RunData, *, attended: bool) -> render.RunData:
                                    mode="normal", attention=("car7",) if attended else (),
                                    ego_candidate=1, accel_bias_mps2=0.0, steer_bias_rad=0.0)
     return render.RunData(record=record, map=short_run.map, decisions={"d1": decision},
-                           net_file=short_run.net_file)
+                          net_file=short_run.net_file)
 
 
 def test_attended_agents_are_red(short_run: render.RunData, tmp_path: Path) -> None:

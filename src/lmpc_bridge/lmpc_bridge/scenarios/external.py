@@ -263,7 +263,8 @@ def _random_trips(net_file: Path, out: Path, bg: BackgroundSpec) -> Path:
 
     tools = Path(sumo.SUMO_HOME) / "tools"
     cmd = [sys.executable, str(tools / "randomTrips.py"), "-n", str(net_file),
-           "-o", str(out), "--seed", str(bg.seed), "-b", "0", "-e", f"{bg.end_s:g}",
+           "-o", str(out), "-r", str(out.with_suffix(".rou.xml")), "--seed", str(bg.seed),
+           "-b", "0", "-e", f"{bg.end_s:g}",
            "-p", f"{bg.period_s:g}", "--fringe-factor", f"{bg.fringe_factor:g}",
            "--min-distance", f"{bg.min_distance_m:g}", "--prefix", "bg",
            "--vehicle-class", EGO_CLASS, "--validate",
@@ -271,8 +272,9 @@ def _random_trips(net_file: Path, out: Path, bg: BackgroundSpec) -> Path:
     env = dict(os.environ, SUMO_HOME=str(sumo.SUMO_HOME))
     env["PATH"] = str(Path(sumo.SUMO_HOME) / "bin") + os.pathsep + env.get("PATH", "")
     try:
+        # cwd: randomTrips / duarouter write side files next to where they run
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env,
-                              check=False)
+                              check=False, cwd=out.parent)
     except subprocess.TimeoutExpired:
         raise SceneError("randomTrips.py took over 600 s: ask for fewer background trips "
                          "(larger background.period_s or smaller end_s)") from None
