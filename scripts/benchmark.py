@@ -230,6 +230,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     table = table_md(summary)
     (args.out / "table.md").write_text(table)
     print(table)
+    try:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from render import plot_oc_bars
+
+        plot_oc_bars(summary, args.out / "oc_bars.png")
+    except Exception as exc:  # noqa: BLE001 - a plotting problem must not lose the results
+        print(f"bar chart not drawn: {type(exc).__name__}: {exc}", file=sys.stderr)
     print(f"wrote {args.out}/results.csv, table.md, summary.json "
           f"in {time.monotonic() - t0:.0f}s", flush=True)
     return 0
