@@ -11,7 +11,7 @@ LLAMA_CMAKE_ARGS ?= -DGGML_NATIVE=OFF -DGGML_AVX2=ON -DGGML_FMA=ON -DGGML_F16C=O
 PKGS := src/lmpc_msgs_py src/lmpc_mpc src/lmpc_bridge src/lmpc_llm_planner
 SETUPS := pyproject.toml $(foreach p,$(PKGS),$(p)/setup.py)
 
-.PHONY: install demo test lint clean
+.PHONY: install demo test lint bench clean
 
 install: $(STAMP)
 
@@ -26,6 +26,11 @@ $(STAMP): $(SETUPS)
 
 demo: install
 	$(PY) scripts/run_graph.py --scenario usi --seed 0 --planner rules --clock sync
+
+# The paper's Table I: 5 families x 25 seeds x {mpc, lmpc-rules}, in-process, one worker per core.
+bench: install
+	$(PY) scripts/benchmark.py --families si,usi,lane,rab,eoa --seeds 0-24 \
+		--methods mpc,lmpc-rules --out runs/bench
 
 lint: install
 	$(PY) -m flake8 src scripts test
