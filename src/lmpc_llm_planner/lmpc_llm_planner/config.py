@@ -49,7 +49,7 @@ class RulesConfig(_Frozen):
     brake_margin_factor: float = Field(default=1.0, ge=1.0, le=5.0)
     """Ask for this much more than the kinematic need v^2 / 2d when choosing a braking
     interval (1: the MPC follows a braking bias to a stop since its per-stage bias)."""
-    approach_turn_speed_mps: float = Field(default=6.0, gt=0.0, le=30.0)
+    approach_turn_speed_mps: float = Field(default=5.0, gt=0.0, le=30.0)
     """Approaching a turn, slow down to reach the stop line at no more than this speed."""
     stop_margin_m: float = Field(default=1.0, ge=0.0, le=10.0)
     """Stop this far before the stop line."""

@@ -400,7 +400,12 @@ class MpcSolver:
         # only be answered along the road; a sideways escape off the lane is no answer
         rho = np.maximum(d_hat_ref / lat_clear, 1.0)
         rows[:, :, 4] = np.where(ahead | virtual, rho, np.maximum(rho, _BEHIND_RHO))
-        rows[:, :, 5] = 1.0
+        # an agent behind the ego now (a follower) is its own driver's business while it
+        # stays behind: its constant-speed forecast runs into a braking ego, and the term
+        # then pushed the ego sideways off its lane (usi seed 1); once it is level or
+        # ahead (overtaking) it counts again
+        follower = (~ahead[:, :1]) & ~virtual
+        rows[:, :, 5] = np.where(follower & ~ahead, 0.0, 1.0)
         return rows
 
     def _relevance(self, rows: np.ndarray, guesses: list[np.ndarray],
@@ -440,7 +445,7 @@ class MpcSolver:
             w = self._warm
             guesses.append(np.vstack([w[1:, :4], w[-1:, :4]]))
         rel = self._relevance(rows, guesses, yaw_ref)
-        keep = rel < _RELEVANCE_MARGIN_M
+        keep = (rel < _RELEVANCE_MARGIN_M) & (rows[:, :, 5] > 0.0)
         count = int(keep.sum(axis=0).max())
         n_slots = self.slots_for(count)
         if count == 0:

@@ -2,21 +2,26 @@
 inputs and answers the same JSON text an LLM would (so it goes through the same
 validation and translation).
 
-Rules (first version):
+Rules (docs/lmpc_llm_planner.md, "The rules backend", has the numbers):
 1. The ego tracks the candidate that follows its route.
 2. The leader in the ego's lane and every agent within ``nearby_attention_m`` are
    attended, as are the agents the rules below reason about.
-3. A left-turning vehicle yields to oncoming traffic (paper Fig. 1; a right turn in
-   left-hand traffic): oncoming agents whose straight path crosses the ego's turn
-   path are compared by time: the ego's time to clear the crossing (accelerating
-   from its speed) against the agent's time to reach it (at constant speed). Gap
-   below ``safe_gap_s`` -> stop before the stop line (or, once past it, before the
-   crossing): braking bias from v^2 / 2d, action and safety "high", tracking "low".
-   If it can no longer stop in time it commits, with safety "high".
-4. Keep a safe distance: an agent ahead on a collision course with TTC under
-   ``safe_gap_s`` -> braking bias, safety "high".
+3. Gap acceptance in a left turn (paper Fig. 1; a right turn in left-hand traffic):
+   oncoming agents whose straight path crosses the ego's turn path are compared by
+   time: the agent's arrival at the crossing (constant speed) against the ego's time
+   to clear it (accelerating from its speed); the difference must reach
+   ``safe_gap_s`` (less after a "go": no flapping). Too far in to stop comfortably
+   before the first oncoming lane -> commit and clear briskly (never stop inside the
+   oncoming lanes). Gap too small -> stop before the stop line or the first oncoming
+   lane (the braking interval whose stop lands nearest that point); far from the
+   line the stop is put off to a later decision. Safe gap near / in the junction ->
+   accelerate through; farther -> approach at ``approach_turn_speed_mps``.
+4. An agent in the ego's own path ahead closing in (TTC under ``path_ttc_s``) ->
+   braking bias, safety "high".
 5. Otherwise go: accelerating (below 80 % of the speed limit) or neutral bias,
    normal weights.
+Emergency requests run the same rules; only a threat in the ego's path with a TTC
+under ``commit_ttc_s`` brakes at the strongest interval.
 An instruction mentioning careful / conservative / cautious driving lengthens the
 safe gap and raises the safety weight. The time and gap estimates are
 APPROXIMATIONS (constant speeds, straight agent paths), documented in route.py.
@@ -148,11 +153,14 @@ class RulesBackend:
         if emergency:
             plan.weights["safety"] = "high"
         previous_go = request.previous is not None and request.previous.accel_bias_mps2 >= 0.0
+        lo_neutral = accel[_neutral(accel)][0]
+        previous_stop = request.previous is not None and \
+            request.previous.accel_bias_mps2 < lo_neutral
 
         ego = scene.obs.ego
         self._attend_defaults(scene, plan)
         turn = self._left_turn_rule(scene, plan, accel, steer, safe_gap_s, previous_go,
-                                    emergency)
+                                    emergency, previous_stop)
         if turn != "yield":
             self._path_rule(scene, plan, accel, emergency=emergency,
                             committed=turn == "commit")
@@ -215,6 +223,7 @@ class RulesBackend:
         safe_gap_s: float,
         previous_go: bool,
         emergency: bool,
+        previous_stop: bool = False,
     ) -> str:
         """Rule 3 (gap acceptance of a left turn): "none" (no such turn ahead), "go",
         "yield" (stop before the stop line / the first oncoming lane) or "commit"
@@ -278,7 +287,10 @@ class RulesBackend:
                 self._approach_turn(man, ego.v_mps, plan, accel)
             return "go"
         worst = min(unsafe, key=lambda c: (c.gap_s, c.view.id))
-        vmax_brake = max(-lo for lo, _ in accel)
+        # a new stop must be comfortable (as the MPC's own yield rule): otherwise commit;
+        # a stop already under way may brake harder (else it would flip to "commit"
+        # half-way as the distance shrinks)
+        vmax_brake = max(-lo for lo, _ in accel) if previous_stop else cfg.commit_decel_mps2
         # where to stop: before the stop line, or (past it) before the first oncoming lane
         targets = []
         if man.dist_to_stop_line_m - half_len - cfg.stop_margin_m > 0.0:
