@@ -1,23 +1,45 @@
 """Graph tests on real node processes: the unprotected left turn (usi) end to end.
 
 Each run starts bridge, planner (or not) and MPC as separate processes through
-scripts/run_graph.py in sync mode, on a ROS domain of its own.
+scripts/run_graph.py in sync mode, on a ROS domain of its own. The in-process
+benchmark (the same logic without ROS) must give the same outcome and O.C.
 """
 from __future__ import annotations
 
+import csv
+import subprocess
+import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
-from graphkit import run_graph
+from graphkit import REPO, run_graph
 
 pytestmark = pytest.mark.graph
 
+SEEDS = [0, 1, 2, 3, 4]
+METHOD = {"none": "mpc", "rules": "lmpc-rules"}
+
+
+@pytest.fixture(scope="module")
+def in_process(tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, int], dict[str, Any]]:
+    """The benchmark's rows for usi seeds 0-4, both methods (one run, two workers)."""
+    out = tmp_path_factory.mktemp("bench")
+    proc = subprocess.run(
+        [sys.executable, str(REPO / "scripts" / "benchmark.py"), "--families", "usi",
+         "--seeds", "0-4", "--methods", "mpc,lmpc-rules", "--workers", "2", "--out", str(out)],
+        capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    with open(out / "results.csv") as fh:
+        return {(row["method"], int(row["seed"])): row for row in csv.DictReader(fh)}
+
 
 @pytest.mark.parametrize("planner", ["none", "rules"])
-@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4])
+@pytest.mark.parametrize("seed", SEEDS)
 def test_usi_reaches_target_without_collision(
-    tmp_path: Path, domain_id: int, planner: str, seed: int
+    tmp_path: Path, domain_id: int, planner: str, seed: int,
+    in_process: dict[tuple[str, int], dict[str, Any]],
 ) -> None:
     run = run_graph(tmp_path, domain_id, "--scenario", "usi", "--seed", str(seed),
                     "--planner", planner, "--clock", "sync", "--quiet")
@@ -33,3 +55,9 @@ def test_usi_reaches_target_without_collision(
         assert s["decisions"] == 0
     for key in ("mpc_solve_ms", "control_latency_ms"):
         assert s[key]["median"] is not None and s[key]["p99"] >= s[key]["median"]
+
+    # The graph in sync mode and the in-process benchmark run the same logic.
+    row = in_process[(METHOD[planner], seed)]
+    assert row["outcome"] == s["outcome"]
+    graph_oc = s["metrics"]["overall_cost"]
+    assert float(row["overall_cost"]) == pytest.approx(graph_oc, rel=0.02), (row, s["metrics"])
