@@ -8,7 +8,8 @@ route with a small pure-pursuit follower (a probe, not the MPC). Prints:
 - ``load``: wall seconds of ``SumoSim.reset_scene`` (SUMO start + net parse +
   map build + warm-up excluded) and of the map build alone, edges, map lanes and
   the encoded ``MapSnapshot`` size;
-- ``observation`` (a 1,200 veh/h stream on the ego's route, ending 5 s before the ego starts, puts traffic ahead of it):
+- ``observation`` (a 600 veh/h stream on the ego's route, ending 5 s before the
+  ego starts, puts traffic ahead of it):
   per step, the wall time of the bridge's observation work
   (reading the context subscription, histories, route progress, signals —
   ``SumoSim._refresh`` — plus building the ``Observation``), median / p99, and
@@ -88,7 +89,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     help="netgenerate --rand iterations for the default net")
     ap.add_argument("--from", dest="from_edge")
     ap.add_argument("--to", dest="to_edge")
-    ap.add_argument("--period-s", type=float, default=0.25,
+    ap.add_argument("--period-s", type=float, default=0.5,
                     help="randomTrips period (s): lower = more vehicles")
     ap.add_argument("--warmup-s", type=float, default=300.0)
     ap.add_argument("--steps", type=int, default=300)
@@ -106,8 +107,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     # alone spreads the vehicles thinly over a big net).
     stream = work / "stream.rou.xml"
     stream.write_text(
-        f'<routes><flow id="stream" from="{a}" to="{b}" begin="{args.warmup_s - 120}" end="{args.warmup_s - 5}"'
-        f' vehsPerHour="1200" departLane="best" departSpeed="max"/></routes>\n')
+        f'<routes><flow id="stream" from="{a}" to="{b}" begin="{args.warmup_s - 120}"'
+        f' end="{args.warmup_s - 5}"'
+        f' vehsPerHour="600" departLane="best" departSpeed="max"/></routes>\n')
     scene_yaml = work / "scale.yaml"
     scene_yaml.write_text(
         f"name: scale\nnet: {net_file.resolve()}\nseed: 1\nwarmup_s: {args.warmup_s}\n"

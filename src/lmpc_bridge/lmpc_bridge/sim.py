@@ -170,6 +170,8 @@ class SumoSim:
         self._reached_at_s: float | None = None
         self._max_time_s = 200.0
         self._foes_query_ok = True
+        self._route_edges: set[str] | None = None
+        self._tls_links: dict[tuple[str, int | None], list[tuple[Any, Any]]] | None = None
 
     # --- lifecycle ----------------------------------------------------------------------
     def reset(self, family: str, seed: int, *, max_time_s: float | None = None) -> Observation:
@@ -402,17 +404,26 @@ class SumoSim:
             return ()
         links = []
         route = self._route
-        route_edges = set() if route is None else {
-            lane_id.rsplit("_", 1)[0] for lane_id in route.lane_ids}
-        for tls_id, link_index, distance, state in upcoming:
-            from_lane = to_lane = None
+        if self._route_edges is None:
+            self._route_edges = set() if route is None else {
+                lane_id.rsplit("_", 1)[0] for lane_id in route.lane_ids}
+        route_edges = self._route_edges
+        if self._tls_links is None:
+            # (tls, link index) -> [(lane, successor)] once per map: the per-step lookup must
+            # not scan every lane of a big map.
+            self._tls_links = {}
             for lane in self.map.lanes:
                 for succ in lane.successors:
-                    # SUMO reports the link of the lane the ego is on, which may be a
-                    # parallel lane of a route edge (before a lane change): match edges.
-                    if succ.tls_id == tls_id and succ.link_index == link_index and (
-                            route is None or lane.edge_id in route_edges):
-                        from_lane, to_lane = lane.id, succ.to_lane
+                    if succ.tls_id is not None:
+                        self._tls_links.setdefault((succ.tls_id, succ.link_index), []).append(
+                            (lane, succ))
+        for tls_id, link_index, distance, state in upcoming:
+            from_lane = to_lane = None
+            for lane, succ in self._tls_links.get((tls_id, link_index), ()):
+                # SUMO reports the link of the lane the ego is on, which may be a
+                # parallel lane of a route edge (before a lane change): match edges.
+                if route is None or lane.edge_id in route_edges:
+                    from_lane, to_lane = lane.id, succ.to_lane
             if from_lane is None or to_lane is None:
                 continue
             try:

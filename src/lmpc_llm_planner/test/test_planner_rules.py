@@ -159,3 +159,28 @@ def test_fast_approach_to_a_turn_slows_down(left_turn_map, straight_map, obs_fac
     straight, _, _ = ask(obs_factory(straight_map, ego_y_m=-45.0, ego_v_mps=12.0),
                          planner_config, mpc_config)
     assert mid(acc, straight.action_guidance.accel_interval) >= 0.0
+
+
+def test_emergency_inside_the_junction_commits(left_turn_map, obs_factory, oncoming_factory,
+                                               planner_config, mpc_config):
+    """Already entering the oncoming lane at speed (cannot stop before it comfortably):
+    an emergency answer clears the junction instead of braking in the oncoming lane."""
+    car = oncoming_factory("car1", y_m=25.0, v_mps=10.0)
+    obs = obs_factory(left_turn_map, ego_y_m=-5.0, ego_v_mps=5.0, agents=[car],
+                      lane_id=":J_1_0")
+    w, _, _ = ask(obs, planner_config, mpc_config, mode="emergency")
+    assert mid(mpc_config.accel_intervals_mps2, w.action_guidance.accel_interval) > 0.0
+    assert "committed" in w.reasoning
+
+
+def test_emergency_while_waiting_keeps_waiting(left_turn_map, obs_factory, oncoming_factory,
+                                               planner_config, mpc_config):
+    """Stopped at the line with a car coming: the emergency answer holds (it used to say
+    "keep my speed" with a neutral bias, which let the ego roll off)."""
+    car = oncoming_factory("car1", y_m=12.0, v_mps=10.0)
+    obs = obs_factory(left_turn_map, ego_y_m=-11.5, ego_v_mps=0.0, agents=[car])
+    normal, _, _ = ask(obs, planner_config, mpc_config)
+    emerg, _, _ = ask(obs, planner_config, mpc_config, mode="emergency")
+    acc = mpc_config.accel_intervals_mps2
+    assert mid(acc, normal.action_guidance.accel_interval) < 0.0
+    assert emerg.action_guidance.accel_interval == normal.action_guidance.accel_interval

@@ -75,6 +75,38 @@ class ControllerStats:
     mode: str
 
 
+_LEAD_IN_OFF_RAD = math.radians(60.0)
+_LEAD_IN_M = 6.0
+_LEAD_IN_RADIUS_M = 6.0
+
+
+def _lead_in(path: np.ndarray, x_m: float, y_m: float, yaw_rad: float) -> np.ndarray:
+    """The path, started along the ego's heading when its first metres leave the ego
+    more than 60 degrees off it (the ego stopped turned away from its path, e.g. after
+    dodging inside a junction): the car cannot reverse or turn on the spot, and with a
+    reference pointing sideways or back the MPC stayed at rest (a local minimum; usi
+    seed 23). The lead-in is an arc of ``_LEAD_IN_RADIUS_M`` (steer ~0.42 rad) from the
+    ego's heading round to the bearing of the path point ``_LEAD_IN_M`` ahead, then the
+    path from that point on (an approximation of a kinematically feasible rejoin)."""
+    seg = np.hypot(*np.diff(path, axis=0).T)
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    if cum[-1] < 2.0 * _LEAD_IN_M:
+        return path
+    k = int(np.searchsorted(cum, _LEAD_IN_M))
+    d = path[k] - np.array([x_m, y_m])
+    turn = math.remainder(math.atan2(d[1], d[0]) - yaw_rad, 2.0 * math.pi)
+    if abs(turn) <= _LEAD_IN_OFF_RAD:
+        return path
+    side = 1.0 if turn > 0.0 else -1.0
+    r = _LEAD_IN_RADIUS_M
+    phi = np.linspace(0.0, abs(turn), max(3, int(abs(turn) * r / 0.5) + 1))
+    cx = x_m - side * r * math.sin(yaw_rad)
+    cy = y_m + side * r * math.cos(yaw_rad)
+    arc = np.column_stack([cx + side * r * np.sin(yaw_rad + side * phi),
+                           cy - side * r * np.cos(yaw_rad + side * phi)])
+    return np.vstack([arc, path[k + 1:]]) if k + 1 < len(path) else arc
+
+
 class MpcController:
     """LanguageMPC's low-level controller: one ``Control`` per observation."""
 
@@ -244,6 +276,7 @@ class MpcController:
             ref_id = None
             weights = cfg.weights_for(None)
             bias = (0.0, 0.0)
+        path = _lead_in(path, ego.x_m, ego.y_m, ego.yaw_rad)
         v_limit = veh.max_speed_mps
         lane = lane_at(obs.map, x_m=ego.x_m, y_m=ego.y_m, yaw_rad=ego.yaw_rad,
                        lane_id=ego.lane_id)

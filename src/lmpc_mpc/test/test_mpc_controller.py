@@ -164,3 +164,49 @@ def test_time_budget_only_counted_when_not_realtime() -> None:
         assert ctl.mode == "baseline"
     st = ctrl.stats()
     assert st.solver_failures == 0 and st.over_budget == 3
+
+
+def test_braking_bias_is_followed_at_its_rate(solver: MpcSolver) -> None:
+    """The strongest braking interval from 3 m/s: the MPC brakes at about its midpoint
+    (it used to spread ~1 m/s^2 over the horizon: v >= 0 made the constant bias
+    infeasible and the quadratic cost preferred the spread)."""
+    m = S.straight_road()
+    ctrl = _ctrl(solver)
+    ctrl.on_decision(_decision((10.0, -4.8), stamp_s=0.0, latency_s=0.0,
+                               levels=WeightLevels(action="high")))
+    ego = S.ego_state(x_m=10.0, y_m=-4.8, yaw_rad=0.0, v_mps=3.0, stamp_s=0.1, seq=1)
+    ctl = ctrl.compute(S.observation(m, ego))
+    want = CFG.bias_for(0, CFG.neutral_steer_index)[0]
+    assert ctl.mode == "decision"
+    assert ctl.accel_mps2 < 0.8 * want  # at least 80 % of the asked deceleration
+
+
+def test_route_reference_off_path_points_along_the_route(solver: MpcSolver) -> None:
+    """Stopped beside its path inside the junction, with SUMO naming another internal
+    lane: the baseline reference still runs forward along the left turn."""
+    m = S.four_way_junction(ego_turn="l")
+    ctrl = _ctrl(solver)
+    # on the left-turn arc (centre (-8, -8), r 9.6), 1.2 m outside it, heading along it
+    ang = math.radians(30.0)
+    r = 9.6 + 1.2
+    x, y = -8.0 + r * math.cos(ang), -8.0 + r * math.sin(ang)
+    ego = S.ego_state(x_m=x, y_m=y, yaw_rad=ang + math.pi / 2, v_mps=0.0,
+                      lane_id=":J_0_0", route_index=1)
+    ctrl.compute(S.observation(m, ego))
+    path = ctrl.reference_path
+    d = path[min(len(path) - 1, 20)] - path[0]
+    heading = math.atan2(d[1], d[0])
+    assert abs(math.remainder(heading - (ang + math.pi / 2), 2 * math.pi)) < math.radians(45)
+    assert path[-1][0] < -20.0  # it ends out on W_out_0, not back on S_in_0
+
+
+def test_facing_away_from_the_path_gets_a_lead_in() -> None:
+    from lmpc_mpc.controller import _lead_in
+    path = np.column_stack([np.zeros(50), np.linspace(0.0, 49.0, 50)])  # north
+    out = _lead_in(path, 0.0, 0.0, -math.pi / 2)  # ego faces south
+    d = out[2] - out[0]
+    # it starts along the ego's heading, then bends round towards the path
+    assert d[1] < 0.0 and abs(d[0]) < abs(d[1])
+    assert out[-1][1] == pytest.approx(49.0)
+    same = _lead_in(path, 0.0, 0.0, math.pi / 2)  # already along it: unchanged
+    assert same is path
