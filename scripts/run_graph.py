@@ -185,7 +185,8 @@ def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, 
             # an LLM call may take its whole deadline (local model: tens of seconds)
             "planner_timeout_s": 180.0 if llm else 30.0,
         },
-        "mpc": {"use_sim_time": True},
+        # the wall-time budget of a solve is enforced only when the clock is real
+        "mpc": {"use_sim_time": True, "clock_mode": args.clock},
     }
     if args.scene is not None:
         params["bridge"]["scene_file"] = str(args.scene.resolve())
