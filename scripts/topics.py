@@ -79,7 +79,7 @@ def wait_for_topics(node: Node, timeout_s: float) -> list[tuple[str, list[str]]]
         now = node.get_topic_names_and_types()
         if now != found:
             found, stable_since = now, time.monotonic()
-        elif found and time.monotonic() - stable_since > 1.0:
+        elif found and time.monotonic() - stable_since > 2.0:
             break
     return found
 
