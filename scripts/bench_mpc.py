@@ -2,7 +2,7 @@
 """MPC microbenchmark: solve time median / p99 / max and iterations per horizon, number of
 attended agents and solver (FATROP vs IPOPT in the same run, with ratios).
 
-    bench_mpc.py --horizons 20,30 --agents 0,5,10,20 --solvers fatrop,ipopt
+    bench_mpc.py --horizons 20 30 --agents 0 5 10 20 --solvers fatrop ipopt
 """
 from __future__ import annotations
 
