@@ -273,6 +273,12 @@ def scene_failure(run_dir: Path, args: argparse.Namespace, detail: str) -> dict[
         "fallbacks": 0, "late_controls": 0, "mpc_solve_ms": {}, "control_latency_ms": {},
         "metrics": {}, "nodes": {}, "run_dir": str(run_dir), "bag": None,
     }
+    return _write_summary(summary, run_dir, args)
+
+
+def _write_summary(summary: dict[str, object], run_dir: Path,
+                   args: argparse.Namespace) -> dict[str, object]:
+    """Write the summary into the run folder (and to --summary-json)."""
     text = json.dumps(summary, indent=2)
     (run_dir / "summary.json").write_text(text)
     if args.summary_json:
@@ -325,12 +331,7 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
         "run_dir": str(run_dir),
         "bag": str(run_dir / "bag") if args.record else None,
     }
-    text = json.dumps(summary, indent=2)
-    (run_dir / "summary.json").write_text(text)
-    if args.summary_json:
-        args.summary_json.parent.mkdir(parents=True, exist_ok=True)
-        args.summary_json.write_text(text)
-    return summary
+    return _write_summary(summary, run_dir, args)
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
