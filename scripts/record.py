@@ -21,6 +21,7 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 import rclpy  # noqa: E402
 from rclpy.executors import ExternalShutdownException  # noqa: E402
 from rclpy.node import Node  # noqa: E402
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rosbags.rosbag2 import StoragePlugin, Writer  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
@@ -39,6 +40,9 @@ KNOWN_TOPICS: dict[str, str] = {
     topics.topic(topics.PREDICTED_PATH): "nav_msgs/msg/Path",
 }
 LATCHED_TOPICS = {topics.topic(topics.MAP), topics.topic(topics.EPISODE)}
+# Reliable and deep: a recorder busy writing must not lose samples to a short history.
+RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000,
+                        reliability=ReliabilityPolicy.RELIABLE)
 
 
 def message_class(type_name: str) -> type:
@@ -64,7 +68,7 @@ class Recorder(Node):
     def _subscribe(self, name: str, type_name: str) -> None:
         if name in self.connections or type_name not in self.typestore.types:
             return
-        qos = lmpc_qos.LATCHED if name in LATCHED_TOPICS else lmpc_qos.STREAM
+        qos = lmpc_qos.LATCHED if name in LATCHED_TOPICS else RECORD_QOS
         self.connections[name] = self.writer.add_connection(
             name, type_name, typestore=self.typestore)
         self.counts[name] = 0

@@ -184,6 +184,8 @@ def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, 
             "max_time_s": args.max_time_s, "run_dir": str(run_dir),
             # an LLM call may take its whole deadline (local model: tens of seconds)
             "planner_timeout_s": 180.0 if llm else 30.0,
+            # a recorder must hear step 0 as well
+            "extra_subscribers": 1 if args.record else 0,
         },
         # the wall-time budget of a solve is enforced only when the clock is real
         "mpc": {"use_sim_time": True, "clock_mode": args.clock},

@@ -60,6 +60,8 @@ class BridgeConfig(BaseModel):
     clock_mode: Literal["sync", "realtime"] = "sync"
     wait_for_planner: bool = False
     """Sync mode: also wait for the planner's status of each step (set when a planner runs)."""
+    extra_subscribers: int = Field(0, ge=0)
+    """Sync mode: further subscribers of the ego state to wait for before step 0 (a recorder)."""
     control_timeout_s: float = Field(1.0, gt=0)
     """Sync mode: wall seconds to wait for a step's control before counting it late."""
     planner_timeout_s: float = Field(30.0, gt=0)
@@ -201,7 +203,7 @@ class BridgeNode(LmpcNode):
     # -- stepping ------------------------------------------------------------------------
     def _ready_to_start(self) -> Optional[str]:
         """None when every participant is connected, else what we wait for."""
-        need_subs = 2 if self.cfg.wait_for_planner else 1
+        need_subs = (2 if self.cfg.wait_for_planner else 1) + self.cfg.extra_subscribers
         have_subs = self.pub_ego.subscription_count()
         if have_subs < need_subs:
             return f"subscribers of {self.pub_ego.topic} ({have_subs} of {need_subs})"
