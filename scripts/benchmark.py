@@ -88,7 +88,23 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
     """One episode in this worker process; returns its results row.
 
     With ``scene_file`` the episode runs that scene description (``family`` and
-    ``seed`` are then its name and SUMO seed, for the row)."""
+    ``seed`` are then its name and SUMO seed, for the row). Anything that raises gives
+    an ``error`` row with the reason (exceptions holding SUMO objects do not pickle)."""
+    try:
+        return _run_scene(method, family, seed, work_dir, scene_file)
+    except Exception as exc:  # noqa: BLE001 - one broken scene must not end the run
+        return error_row(method, family, seed, f"{type(exc).__name__}: {exc}")
+
+
+def error_row(method: str, family: str, seed: int, detail: str) -> dict[str, Any]:
+    row: dict[str, Any] = {c: math.nan for c in COLUMNS}
+    row.update(family=family, seed=seed, method=method, outcome="error", collision=0, fail=1,
+               decisions=0, fallbacks=0, steps=0, wall_s=0.0, detail=detail)
+    return row
+
+
+def _run_scene(method: str, family: str, seed: int, work_dir: str,
+               scene_file: Optional[str]) -> dict[str, Any]:
     global _SIM, _SOLVER
     from lmpc_bridge.runner import run_episode
     from lmpc_bridge.sim import SumoSim
@@ -98,7 +114,8 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
 
     config = load_mpc_config()
     if _SIM is None:
-        _SIM = SumoSim(work_dir=Path(work_dir))
+        # a scene folder per worker: two workers must never write the same scene files
+        _SIM = SumoSim(work_dir=Path(work_dir) / f"worker-{os.getpid()}")
         _SOLVER = MpcSolver(config)
         _SOLVER.warm_up()
     _SOLVER.reset()  # no warm start carried over from the previous episode
@@ -107,7 +124,8 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
     if scene_file is not None:
         from lmpc_bridge.scenarios.external import build_external_scene
 
-        scene = build_external_scene(scene_file, work_dir=Path(work_dir))
+        scene = build_external_scene(
+            scene_file, work_dir=Path(work_dir) / f"worker-{os.getpid()}")
         sim, max_time_s = _SceneFileSim(_SIM, scene), scene.max_time_s
     result = run_episode(sim, family=family, seed=seed,
                          controller=MpcController(config, solver=_SOLVER),
@@ -131,6 +149,11 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
     }
 
 
+def _mean(values: Any) -> float:
+    finite = [float(v) for v in values if isinstance(v, (int, float)) and math.isfinite(v)]
+    return round(statistics.fmean(finite), 3) if finite else math.nan
+
+
 def aggregate(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
     """Per family and method: counts of collisions and fails, means of the rest."""
     out: dict[str, dict[str, dict[str, Any]]] = {}
@@ -143,7 +166,8 @@ def aggregate(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]
                 "scenes": len(sel),
                 "collisions": sum(r["collision"] for r in sel),
                 "fails": sum(r["fail"] for r in sel),
-                **{k: round(statistics.fmean(r[k] for r in sel), 3)
+                # means over the scenes that produced metrics (error rows count as fails)
+                **{k: _mean(r[k] for r in sel)
                    for k in ("ineff", "time_s", "pen_acc", "pen_dist", "overall_cost")},
             }
         base = out[family].get("mpc")
@@ -207,10 +231,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             m, f, s = futures[fut]
             try:
                 row = fut.result()
-            except Exception as exc:  # noqa: BLE001 - one broken scene must not end the run
-                row = {c: math.nan for c in COLUMNS}
-                row.update(family=f, seed=s, method=m, outcome="error", collision=0, fail=1,
-                           detail=f"{type(exc).__name__}: {exc}")
+            except Exception as exc:  # noqa: BLE001 - e.g. a worker process that died
+                row = error_row(m, f, s, f"{type(exc).__name__}: {exc}")
             rows.append(row)
             done = len(rows)
             elapsed = time.monotonic() - t0
