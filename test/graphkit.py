@@ -23,7 +23,12 @@ def next_domain_id() -> int:
     """A domain id of its own for each graph (parallel runs never cross-talk).
 
     Ids 1..100 are valid with Fast DDS' default port mapping; spread by pid so two
-    pytest processes on one machine pick different ones."""
+    pytest processes on one machine pick different ones. ``LMPC_TEST_DOMAINS=60-69``
+    confines one pytest process to a range (people running tests side by side)."""
+    span = os.environ.get("LMPC_TEST_DOMAINS")
+    if span:
+        low, high = (int(v) for v in span.split("-"))
+        return low + next(_domains) % (high - low + 1)
     return 1 + (os.getpid() * 7 + next(_domains)) % 100
 
 
