@@ -38,6 +38,8 @@ KNOWN_TOPICS: dict[str, str] = {
     topics.topic(topics.EGO_ODOM): "nav_msgs/msg/Odometry",
     topics.topic(topics.REFERENCE_PATH): "nav_msgs/msg/Path",
     topics.topic(topics.PREDICTED_PATH): "nav_msgs/msg/Path",
+    topics.topic(topics.CANDIDATE_MARKERS): "visualization_msgs/msg/MarkerArray",
+    topics.topic(topics.AGENT_PREDICTION_MARKERS): "visualization_msgs/msg/MarkerArray",
 }
 LATCHED_TOPICS = {topics.topic(topics.MAP), topics.topic(topics.EPISODE)}
 # Reliable and deep: a recorder busy writing must not lose samples to a short history.

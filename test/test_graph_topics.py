@@ -26,6 +26,8 @@ EXPECTED_TYPES = {
     "/lmpc/ego/odom": "nav_msgs/msg/Odometry",
     "/lmpc/mpc/reference": "nav_msgs/msg/Path",
     "/lmpc/mpc/predicted": "nav_msgs/msg/Path",
+    "/lmpc/mpc/candidates": "visualization_msgs/msg/MarkerArray",
+    "/lmpc/mpc/agent_predictions": "visualization_msgs/msg/MarkerArray",
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
 

@@ -10,7 +10,11 @@ machine is doing: run it on an idle machine for numbers to quote.
 ``python -m lmpc_mpc.bench`` (or ``scripts/bench_mpc.py``) prints median / p99 / max
 solve time, the controller's whole ``compute`` time and the solver iterations for
 horizons 20 and 30 and 0, 5, 10, 20 agents, FATROP and IPOPT in the same run, and the
-IPOPT / FATROP ratios.
+IPOPT / FATROP ratios. A second table keeps ``--present`` agents (default 20) in the
+scene but attends only the nearest k of them (k from ``--agents``; the controller's
+``max_agents``): only attended agents enter the problem, so this shows what attention
+saves. ``cpu med`` is the process CPU time of ``compute`` (what a loaded machine
+inflates least); the solve columns are wall time.
 """
 from __future__ import annotations
 
@@ -43,25 +47,31 @@ def _agents(n_agents: int, t_s: float) -> list:
 
 def run(*, n_agents: int = 10, steps: int = 100, solver: str = "fatrop",
         horizon: Optional[int] = None, config: Optional[MpcConfig] = None,
-        verbose: bool = True) -> dict[str, float]:
+        attended: Optional[int] = None, verbose: bool = True) -> dict[str, float]:
     """Closed-loop solve times; returns (and prints) median / p99 / max in ms of the
     solve and of the controller's whole ``compute`` (and its thread CPU time, which a
     busy machine inflates less), solver iterations and failures.
 
-    The first step (which builds the compiled problems) is left out of the figures."""
+    ``attended``: attend only the nearest this many of the ``n_agents`` present (None:
+    all in sensing range, the baseline). The first step (which builds the compiled
+    problems) is left out of the figures."""
     cfg = config or load_mpc_config()
     upd: dict[str, object] = {"solver": solver, "time_budget_s": 10.0}
     if horizon is not None:
         upd["horizon"] = horizon
+    if attended is not None:
+        upd["max_agents"] = attended
     cfg = cfg.model_copy(update=upd)
     mpc = MpcSolver(cfg, DEFAULT_VEHICLE)
     mpc.warm_up()
     iters: list[int] = []
+    solve_cpu: list[float] = []
     inner = mpc.solve
 
     def counting_solve(problem: MpcProblem) -> MpcResult:
         res = inner(problem)
         iters.append(res.iterations)
+        solve_cpu.append(res.solve_cpu_s * 1e3)
         return res
 
     mpc.solve = counting_solve  # type: ignore[method-assign]
@@ -79,10 +89,10 @@ def run(*, n_agents: int = 10, steps: int = 100, solver: str = "fatrop",
                           v_mps=float(x[3]), stamp_s=t, seq=k, lane_id="E0_0")
         obs = S.observation(m, ego, _agents(n_agents, t))
         started = time.perf_counter()
-        cpu0 = time.thread_time()
+        cpu0 = time.process_time()
         ctl = ctrl.compute(obs)
         elapsed_ms = (time.perf_counter() - started) * 1e3
-        cpu_ms = (time.thread_time() - cpu0) * 1e3
+        cpu_ms = (time.process_time() - cpu0) * 1e3
         if ctl.mode in ("shifted", "brake"):
             fails += 1
         elif k > 0:
@@ -93,10 +103,14 @@ def run(*, n_agents: int = 10, steps: int = 100, solver: str = "fatrop",
     arr = np.array(times) if times else np.array([math.nan])
     w = np.array(wall) if wall else np.array([math.nan])
     it = np.array(iters[1:] if len(iters) > 1 else [0])
+    sc = np.array(solve_cpu[1:] if len(solve_cpu) > 1 else [math.nan])
     out = {"median_ms": float(np.median(arr)), "p99_ms": float(np.percentile(arr, 99)),
            "max_ms": float(np.max(arr)), "compute_median_ms": float(np.median(w)),
            "compute_p99_ms": float(np.percentile(w, 99)),
            "compute_cpu_median_ms": float(np.median(cpu)) if cpu else math.nan,
+           "compute_cpu_p99_ms": float(np.percentile(cpu, 99)) if cpu else math.nan,
+           "solve_cpu_median_ms": float(np.median(sc)),
+           "solve_cpu_p99_ms": float(np.percentile(sc, 99)),
            "iter_median": float(np.median(it)),
            "iter_max": float(np.max(it)), "failures": float(fails)}
     if verbose:
@@ -108,6 +122,21 @@ def run(*, n_agents: int = 10, steps: int = 100, solver: str = "fatrop",
     return out
 
 
+def _table(rows: dict[tuple[int, int, str], dict[str, float]], what: str) -> None:
+    head = (f"{'N':>3} {what:>6} {'solver':>6} | {'median':>7} {'p99':>7} {'max':>7} ms"
+            f" | {'iter med':>8} {'max':>4} | {'compute med':>11} {'p99':>7} | "
+            f"{'cpu med':>7} {'p99':>7} ms | {'solve cpu':>9} {'p99':>6} ms | fail")
+    print(head)
+    print("-" * len(head))
+    for (horizon, n_agents, name), r in rows.items():
+        print(f"{horizon:>3} {n_agents:>6} {name:>6} | {r['median_ms']:7.2f} {r['p99_ms']:7.2f}"
+              f" {r['max_ms']:7.2f}    | {r['iter_median']:8.0f} {r['iter_max']:4.0f} | "
+              f"{r['compute_median_ms']:11.2f} {r['compute_p99_ms']:7.2f} | "
+              f"{r['compute_cpu_median_ms']:7.2f} {r['compute_cpu_p99_ms']:7.2f}    | "
+              f"{r['solve_cpu_median_ms']:9.2f} {r['solve_cpu_p99_ms']:6.2f}    | "
+              f"{r['failures']:.0f}")
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Command line: the FATROP / IPOPT table over horizons and agent counts."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -116,6 +145,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--solvers", nargs="+", default=["fatrop", "ipopt"],
                     choices=["fatrop", "ipopt"])
     ap.add_argument("--steps", type=int, default=100, help="closed-loop steps per cell")
+    ap.add_argument("--present", type=int, default=20,
+                    help="agents present in the attention table (0: no such table)")
     ap.add_argument("--config", default=None, help="MPC config YAML (default: packaged)")
     args = ap.parse_args(list(argv) if argv is not None else None)
     cfg = load_mpc_config(args.config)
@@ -126,17 +157,20 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                 rows[(horizon, n_agents, name)] = run(
                     n_agents=n_agents, steps=args.steps, solver=name, horizon=horizon,
                     config=cfg, verbose=False)
-    head = (f"{'N':>3} {'agents':>6} {'solver':>6} | {'median':>7} {'p99':>7} {'max':>7} ms"
-            f" | {'iter med':>8} {'max':>4} | {'compute med':>11} {'p99':>7} {'cpu med':>7} ms"
-            f" | fail")
-    print(head)
-    print("-" * len(head))
-    for (horizon, n_agents, name), r in rows.items():
-        print(f"{horizon:>3} {n_agents:>6} {name:>6} | {r['median_ms']:7.2f} {r['p99_ms']:7.2f}"
-              f" {r['max_ms']:7.2f}    | {r['iter_median']:8.0f} {r['iter_max']:4.0f} | "
-              f"{r['compute_median_ms']:11.2f} {r['compute_p99_ms']:7.2f} "
-              f"{r['compute_cpu_median_ms']:7.2f}    | "
-              f"{r['failures']:.0f}")
+    _table(rows, "agents")
+    if args.present > 0:
+        att: dict[tuple[int, int, str], dict[str, float]] = {}
+        for horizon in args.horizons:
+            for k in args.agents:
+                if k > args.present:
+                    continue
+                for name in args.solvers:
+                    att[(horizon, k, name)] = run(
+                        n_agents=args.present, attended=k, steps=args.steps, solver=name,
+                        horizon=horizon, config=cfg, verbose=False)
+        print(f"\n{args.present} agents present, only the nearest k attended "
+              f"(the others never enter the problem):")
+        _table(att, "k att")
     if {"fatrop", "ipopt"} <= set(args.solvers):
         print("\nIPOPT / FATROP (solve time):")
         for horizon in args.horizons:

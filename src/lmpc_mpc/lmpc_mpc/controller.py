@@ -147,6 +147,10 @@ class MpcController:
         """(N+1, 4) the time-parameterised reference of the last step."""
         self.predicted: Optional[np.ndarray] = None
         """(N+1, 4) the predicted ego states of the last step (x, y, yaw, v)."""
+        self.agent_predictions: dict[str, np.ndarray] = {}
+        """Attended agent id -> (N+1, 2) forecast the last problem used (visual mirror)."""
+        self.reference_id: Optional[int] = None
+        """The decision's candidate id of the last step (None: baseline route reference)."""
 
     # -- decisions -----------------------------------------------------------------------
     def on_decision(self, decision: Decision) -> None:
@@ -318,6 +322,8 @@ class MpcController:
                               dt_s=cfg.dt_s, stop_at_m=stop_at, s_limit_m=s_limit)
         self.reference_path = ref.path
         self.reference_states = ref.states
+        self.reference_id = ref_id
+        self.agent_predictions = {ob.obstacle_id: ob.xy_m for ob in obstacles}
         if stop_at is not None:
             xy = line.at(stop_at + 0.5 * veh.length_m + _STOP_MARGIN_M)[0]
             obstacles.append(Obstacle("stop_line", np.tile(xy, (n + 1, 1)), 0.1, 3.0,

@@ -14,9 +14,10 @@ from typing import Optional
 
 import rclpy
 from nav_msgs.msg import Path
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import Point, PoseStamped
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
+from visualization_msgs.msg import Marker, MarkerArray
 
 from lmpc_msgs_py import qos as lmpc_qos
 from lmpc_msgs_py import topics
@@ -26,6 +27,7 @@ from lmpc_msgs_py.messages import AgentArray, Control, Decision, EgoState, MapSn
 from lmpc_msgs_py.observation import Observation
 from lmpc_mpc.config import MpcConfigError, load_mpc_config
 from lmpc_mpc.controller import MpcController
+from lmpc_mpc.mirrors import MirrorLine, agent_lines, candidate_lines
 
 PAIR_WAIT_S = 0.2
 """Wall time to wait for agents / signals of the ego state's stamp before using the newest."""
@@ -74,6 +76,10 @@ class MpcNode(LmpcNode):
                                               lmpc_qos.MIRROR)
         self._pred_pub = self.create_publisher(Path, self.topic(topics.PREDICTED_PATH),
                                                lmpc_qos.MIRROR)
+        self._cand_pub = self.create_publisher(MarkerArray, self.topic(topics.CANDIDATE_MARKERS),
+                                               lmpc_qos.MIRROR)
+        self._agent_pred_pub = self.create_publisher(
+            MarkerArray, self.topic(topics.AGENT_PREDICTION_MARKERS), lmpc_qos.MIRROR)
         self.json_subscription(MapSnapshot, topics.MAP, self._on_map, lmpc_qos.LATCHED,
                                check_seq=False)
         self.json_subscription(EgoState, topics.EGO_STATE, self._on_ego)
@@ -206,6 +212,42 @@ class MpcNode(LmpcNode):
                     ps.pose.position.y = float(row[1])
                     msg.poses.append(ps)
             pub.publish(msg)
+        self._publish_markers(obs, stamp)
+
+    def _publish_markers(self, obs: Observation, stamp) -> None:  # type: ignore[no-untyped-def]
+        """The candidates and the agents' predictions as MarkerArrays (frame ``map``).
+        Each array starts with a DELETEALL so lines of agents gone out of view vanish."""
+        ctl = self.controller
+        cands = candidate_lines(obs.map, obs.ego, lookahead_m=self.config.lookahead_m,
+                                reference_path=ctl.reference_path,
+                                reference_id=ctl.reference_id)
+        preds = agent_lines(obs.agents.agents, ctl.agent_predictions,
+                            horizon=self.config.horizon, dt_s=self.config.dt_s)
+        for pub, lines in ((self._cand_pub, cands), (self._agent_pred_pub, preds)):
+            arr = MarkerArray()
+            clear = Marker()
+            clear.header.frame_id = "map"
+            clear.header.stamp = stamp
+            clear.action = Marker.DELETEALL
+            arr.markers.append(clear)
+            arr.markers.extend(self._marker(line, stamp) for line in lines)
+            pub.publish(arr)
+
+    @staticmethod
+    def _marker(line: MirrorLine, stamp) -> Marker:  # type: ignore[no-untyped-def]
+        m = Marker()
+        m.header.frame_id = "map"
+        m.header.stamp = stamp
+        m.ns = line.ns
+        m.id = line.marker_id
+        m.type = Marker.LINE_STRIP
+        m.action = Marker.ADD
+        m.pose.orientation.w = 1.0
+        m.scale.x = float(line.width_m)
+        m.color.r, m.color.g, m.color.b, m.color.a = (float(c) for c in line.rgba)
+        m.text = line.label[:100]
+        m.points = [Point(x=float(x), y=float(y), z=0.0) for x, y in line.points_m]
+        return m
 
     def _diagnostics(self) -> None:
         self._clock_s()

@@ -122,6 +122,8 @@ class MpcResult:
     iterations: int
     controls: np.ndarray = field(default_factory=lambda: np.zeros((0, NU)))
     """(N, 2) planned controls (the shifted-plan fallback uses them)."""
+    solve_cpu_s: float = math.nan
+    """Process CPU time of the solve (a loaded machine inflates it less than wall)."""
 
 
 def _bicycle(vehicle: VehicleParams) -> ca.Function:
@@ -206,6 +208,7 @@ class MpcSolver:
         self.enforce_time_budget = config.enforce_time_budget
         """Realtime: a solve over ``time_budget_s`` (wall) fails. Off (sync / benchmark):
         success is decided by the iteration cap alone, an overrun is only counted."""
+        self._cpu0 = 0.0
         self.over_budget = 0
         """Successful solves that took longer than ``time_budget_s`` (wall)."""
 
@@ -579,6 +582,7 @@ class MpcSolver:
         if not self._compiled:
             self.warm_up()
         t0 = time.perf_counter()  # compiling is not part of the solve time
+        self._cpu0 = time.process_time()
         try:
             p, x0, n_slots = self._params(problem)
         except MpcInputError as exc:
@@ -619,11 +623,13 @@ class MpcSolver:
         veh = self.vehicle
         u0 = (float(np.clip(us[0, 0], -veh.max_decel_mps2, veh.max_accel_mps2)),
               float(np.clip(us[0, 1], -veh.max_steer_rad, veh.max_steer_rad)))
-        return MpcResult(True, status, u0, xs[:, :4].copy(), elapsed, iters, us.copy())
+        return MpcResult(True, status, u0, xs[:, :4].copy(), elapsed, iters, us.copy(),
+                         time.process_time() - self._cpu0)
 
     def _fail(self, status: str, t0: float, iters: int,
               elapsed: Optional[float] = None) -> MpcResult:
         # a failed solve must not seed the next one
         self._warm = None
         dt = elapsed if elapsed is not None else time.perf_counter() - t0
-        return MpcResult(False, status, (0.0, 0.0), np.zeros((self.n + 1, 4)), dt, iters)
+        return MpcResult(False, status, (0.0, 0.0), np.zeros((self.n + 1, 4)), dt, iters,
+                         solve_cpu_s=time.process_time() - self._cpu0)

@@ -21,6 +21,8 @@ PLANNER_STATUS = "planner/status"
 EGO_ODOM = "ego/odom"
 REFERENCE_PATH = "mpc/reference"
 PREDICTED_PATH = "mpc/predicted"
+CANDIDATE_MARKERS = "mpc/candidates"
+AGENT_PREDICTION_MARKERS = "mpc/agent_predictions"
 AGENT_MARKERS = "agents/markers"
 DIAGNOSTICS = "/diagnostics"
 
