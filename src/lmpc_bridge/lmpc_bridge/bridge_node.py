@@ -68,6 +68,10 @@ class BridgeConfig(BaseModel):
     """Sync mode: wall seconds to wait for the planner's status (longer than its LLM deadline)."""
     control_stale_s: float = Field(0.3, gt=0)
     """Realtime mode: a control older than this (sim) is not applied."""
+    startup_timeout_s: float = Field(0.0, ge=0)
+    """Realtime mode: wall seconds to wait for the MPC (and planner) before step 0, then
+    start anyway (the ego brakes until a control arrives). 0 (default): start at once,
+    as a real vehicle's clock would; the ego brakes while the MPC compiles its solver."""
     max_time_s: float = Field(200.0, gt=0)
     run_dir: str = ""
     progress_period_s: float = Field(5.0, gt=0)
@@ -215,7 +219,12 @@ class BridgeNode(LmpcNode):
         return None
 
     def _publish_step(self) -> None:
-        obs: Observation = self.sim.observe(required_decision_id=self.required_decision_id)
+        # The decision barrier is a sync-mode device (docs/ARCHITECTURE.md): in realtime
+        # mode a decision the MPC never received (it joined late, DDS lost it) would make
+        # the MPC wait BARRIER_WAIT_S on every step until the next decision, so every
+        # control would come too late. Realtime decisions act when they arrive.
+        required = self.required_decision_id if self.cfg.clock_mode == "sync" else None
+        obs: Observation = self.sim.observe(required_decision_id=required)
         t = obs.stamp_s
         self.pub_clock.publish(Clock(clock=_stamp(t)))
         self.timing[obs.ego.seq] = _StepTiming(published_wall_s=time.monotonic())
@@ -345,6 +354,19 @@ class BridgeNode(LmpcNode):
                 rclpy.try_shutdown()
             return
         if not self.started:
+            # Wait for the participants as in sync mode (bounded by startup_timeout_s):
+            # otherwise the ego brakes from its initial speed while the MPC warms up.
+            missing = self._ready_to_start()
+            waited = time.monotonic() - self.waiting_since
+            if missing is not None and waited < self.cfg.startup_timeout_s:
+                if waited > 2.0:
+                    self.log_event("startup", f"waiting for {missing}", level="info")
+                return
+            if missing is None:
+                self.get_logger().info("all participants connected: starting the episode")
+            elif self.cfg.startup_timeout_s > 0.0:
+                self.get_logger().warn(f"starting without {missing} after "
+                                       f"{self.cfg.startup_timeout_s:.0f} s wall")
             self.started = True
             self._publish_step()
             return

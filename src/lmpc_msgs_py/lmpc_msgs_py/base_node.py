@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import time
 from collections import Counter
@@ -109,7 +110,18 @@ class LmpcNode(Node):
         if now - self._last_log.get(key, -1e9) < LOG_THROTTLE_S:
             return
         self._last_log[key] = now
-        getattr(self.get_logger(), level)(text)
+        # One call site per severity: rclpy remembers the severity of each call site and
+        # raises ValueError ("Logger severity cannot be changed between calls") when the
+        # same line logs at another level later (e.g. an info, then a warn event).
+        logger = self.get_logger()
+        if level == "info":
+            logger.info(text)
+        elif level == "error":
+            logger.error(text)
+        elif level == "debug":
+            logger.debug(text)
+        else:
+            logger.warning(text)
 
     def publish_diagnostics(self, level: int, message: str, extra: dict[str, object]) -> None:
         values = {**{k: v for k, v in self.counters.items()}, **extra}
@@ -141,6 +153,13 @@ def run_node(factory: Callable[[], Node], args: Optional[list[str]] = None) -> i
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        # A second Ctrl-C (or a supervisor's repeated SIGINT) while the node tears
+        # down would raise KeyboardInterrupt inside rclpy's destroy calls and end the
+        # process with a traceback; teardown takes well under a second, so ignore it.
+        try:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        except ValueError:
+            pass  # not the main thread (an embedding program): keep its handlers
         if node is not None:
             code = int(getattr(node, "exit_code", 0))
             node.destroy_node()
