@@ -12,6 +12,8 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent / "config" / "planner.yaml"
+LOCAL_CONFIG_PATH = Path(__file__).resolve().parent / "config" / "planner_local.yaml"
+"""The ``local`` backend in a closed loop: a deadline it can meet, a fixed 2.5 s latency."""
 
 BackendName = Literal["rules", "openai", "local", "replay"]
 """Backends ``make_backend`` can build (see ``lmpc_llm_planner.backends``)."""
@@ -124,12 +126,17 @@ class LocalConfig(_Frozen):
     with the schema, for 0-4 agents; ~70 more per agent, 20 agents ~2.3 k) + answer."""
     n_batch: int = Field(default=128, ge=16, le=8192)
     """Prompt tokens per evaluation step; the deadline is checked between steps."""
-    compact_schema: bool = True
-    """Replace the JSON schema in the prompt by a short outline (the grammar enforces it)."""
+    spell_out_choices: bool = True
+    """Replace the prompt's generic answer outline by the outline of the schema narrowed to
+    the request (every offered id and index spelled out, baseline first). A 135M model
+    copies the first choice it reads, so an undecided one drives the baseline; off, it
+    picked a braking interval in every decision of a usi episode (the grammar alone
+    enforces the choices; ~5 tokens per agent shorter)."""
     max_output_tokens: int = Field(default=384, ge=16, le=8192)
-    max_reasoning_chars: int = Field(default=300, ge=20, le=8000)
+    max_reasoning_chars: int = Field(default=100, ge=20, le=8000)
     """Cap on ``reasoning`` in the grammar: a small model otherwise rambles until
-    ``max_output_tokens`` and the JSON never closes."""
+    ``max_output_tokens`` and the JSON never closes; on one core every character costs
+    (~4 characters per token, ~0.1 s per token)."""
     temperature: float = Field(default=0.0, ge=0.0, le=2.0)
     seed: int = Field(default=0, ge=0)
 
@@ -142,9 +149,10 @@ class ReplayConfig(_Frozen):
     match: Literal["hash", "hash_or_stamp"] = "hash_or_stamp"
     """``hash``: only an identical prompt (sha256) is answered; ``hash_or_stamp``: else
     the next unused recorded call with the same stamp, mode and stage."""
-    latency: Literal["sleep", "report"] = "sleep"
-    """``sleep``: take the recorded wall time of each call (the planner then measures
-    about the recorded latency); ``report``: answer at once and only report it."""
+    latency: Literal["sleep", "report"] = "report"
+    """``report``: answer at once and report the recorded latency, which the planner takes
+    as the decision's (an exact repeat in sim time); ``sleep``: spend the recorded wall
+    time of each call (realtime pacing; the planner measures about the recorded latency)."""
     keep_source: bool = True
     """Decisions carry the recorded source (e.g. ``llm:gpt-4o``), as needed for an exact
     repeat: the prompt quotes the previous decision's source, so with ``replay`` the
@@ -187,8 +195,9 @@ class PlannerConfig(_Frozen):
     max_agents_in_prompt: int = Field(default=20, ge=0, le=200)
     """The nearest agents described in the prompt (others are not offered for attention;
     the safety floor still applies to every observed agent)."""
-    chars_per_token: float = Field(default=4.0, gt=0.0, le=20.0)
-    """Token count ESTIMATE for backends that do not report tokens (~4 chars per token)."""
+    chars_per_token: float = Field(default=3.0, gt=0.0, le=20.0)
+    """Token count ESTIMATE for backends that do not report tokens (the SmolLM2 tokenizer
+    gives 2.8-3.2 characters per token on the planner's prompts)."""
     max_output_chars: int = Field(default=32000, ge=100, le=1_000_000)
     """Backend replies longer than this are refused before parsing."""
     rules: RulesConfig = RulesConfig()

@@ -10,6 +10,12 @@ reply; on a timeout, transport error or invalid output it re-asks (carrying the
 error) up to ``max_retries`` times, then emits a ``fallback`` decision (baseline
 behaviour). The safety floor is applied to every decision. It never raises on
 backend output.
+
+Latency (DESIGN §2 sync mode: a decision takes effect at its observation's stamp plus its
+latency): the wall time of all the decision's calls, or ``fixed_latency_s``, or, for a
+backend with ``reports_latency = True``, the sum of the latencies its replies report (a
+replayed log's recorded latency, exactly), or a simulated reasoner's
+``reported_latency_s`` (rules: 0).
 """
 from __future__ import annotations
 
@@ -343,6 +349,11 @@ class PlannerCore:
             if answers:
                 wire = merge_stages(answers)
         latency_s = time.perf_counter() - t0
+        if getattr(self.backend, "reports_latency", False):
+            # A backend that knows the latency better than this wall clock (replay with
+            # ``latency: report``, a simulated LLM) reports it per call; their sum is the
+            # decision's latency, so a replayed decision takes effect at the recorded time.
+            latency_s = sum(a.latency_s for a in attempts)
         tokens_in = sum(a.tokens_in for a in attempts)
         tokens_out = sum(a.tokens_out for a in attempts)
         if wire is None:

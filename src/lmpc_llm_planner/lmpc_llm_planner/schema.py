@@ -23,7 +23,8 @@ backends.
 """
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+import json
+from typing import Annotated, Any, Literal, Mapping, Optional
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -119,3 +120,41 @@ def wire_model_for(*, mode: str, stage: Stage) -> WireModel:
 def decision_json_schema(*, mode: str = "normal", stage: Stage = "all") -> dict[str, Any]:
     """JSON schema of the expected reply (for structured-output and grammar backends)."""
     return wire_model_for(mode=mode, stage=stage).model_json_schema()
+
+
+def describe_schema(schema: Mapping[str, Any], defs: Optional[Mapping[str, Any]] = None, *,
+                    show_limits: bool = True) -> str:
+    """A short JSON-like outline of ``schema`` (fields in order, choices spelled out).
+
+    The prompt carries this instead of the JSON schema itself (a tenth of the tokens);
+    structured-output backends send the schema, grammar backends enforce it.
+    ``show_limits=False`` leaves out string length caps.
+    """
+    defs = defs if defs is not None else (schema.get("$defs") or {})
+    ref = schema.get("$ref")
+    if isinstance(ref, str):
+        schema = defs.get(ref.split("/")[-1], {})
+    if "enum" in schema:
+        return "|".join(json.dumps(v) for v in schema["enum"]) or "(none)"
+    kind = schema.get("type")
+    if kind == "object":
+        props = schema.get("properties") or {}
+        required = set(schema.get("required") or ())
+        parts = [
+            f"{json.dumps(k)}{'' if k in required else '?'}: "
+            + describe_schema(v, defs, show_limits=show_limits)
+            for k, v in props.items()
+        ]
+        extra = schema.get("additionalProperties")
+        if isinstance(extra, dict):
+            parts.append(f"<id>: {describe_schema(extra, defs, show_limits=show_limits)}")
+        return "{" + ", ".join(parts) + "}"
+    if kind == "array":
+        if schema.get("maxItems") == 0:
+            return "[]"
+        items = describe_schema(schema.get("items") or {}, defs, show_limits=show_limits)
+        return "[" + items + ", ...]"
+    if kind == "string":
+        cap = schema.get("maxLength")
+        return f"string (at most {cap} characters)" if cap and show_limits else "string"
+    return str(kind or "value")

@@ -341,3 +341,51 @@ def test_planner_garbage_twice_falls_back(server, request_, planner_config, mpc_
     assert core.counters.errors["fenced"] == 1 and core.counters.errors["transport"] == 1
     rec = json.loads(log.read_text().splitlines()[-1])
     assert rec["error_kind"] == "transport" and SECRET not in log.read_text()
+
+
+def stage_answers(route_id: int) -> Action:
+    """Answers each chained stage by the stage its prompt asks for."""
+    by_stage = {
+        "scenario_encoding": {"scenario_encoding": {
+            "ego_trajectory": route_id, "attention": ["car1"],
+            "agent_trajectories": {"car1": 0}}},
+        "action_guidance": {"action_guidance": {"accel_interval": 1, "steer_interval": 2}},
+        "weight_adjustment": {"weight_adjustment": {
+            "tracking": "low", "action": "high", "smoothness": "normal", "safety": "high"}},
+    }
+
+    def act(req: dict[str, Any]) -> Answer:
+        prompt = req["messages"][-1]["content"]
+        stage = next(s for s in by_stage if f"only the stage '{s}'" in prompt)
+        body = {"reasoning": f"stage {stage}", **by_stage[stage]}
+        return Answer(200, json.dumps(completion(json.dumps(body))).encode())
+    return act
+
+
+@pytest.mark.parametrize("mode", ["normal", "emergency"])
+def test_planner_chained_stages_over_http(server, request_, planner_config, mpc_config,
+                                          tmp_path, mode, left_turn_map, obs_factory):
+    server.default = stage_answers(request_.scene.route_candidate_id)
+    cfg = PlannerConfig.model_validate({**planner_config.model_dump(), "backend": "openai",
+                                        "stages": "chained"})
+    backend = make_backend(cfg, environ={"LMPC_OPENAI_BASE_URL": server.base_url,
+                                         "LMPC_OPENAI_MODEL": "test-model"})
+    core = PlannerCore(cfg, backend, mpc_config, log_path=tmp_path / "decisions.jsonl")
+    agents = list(request_.scene.obs.agents.agents)
+    if mode == "emergency":  # a wrong-way car 20 m ahead in the ego's lane: TTC ~1.1 s
+        agents.append(syn.agent("wrongway", x_m=1.6, y_m=-20.0, yaw_rad=-math.pi / 2,
+                                v_mps=10.0, lane_id="S_in_0"))
+    d = core.on_observation(obs_factory(left_turn_map, agents=agents))
+    stages = ["action_guidance", "weight_adjustment"]
+    if mode == "normal":
+        stages.insert(0, "scenario_encoding")
+    assert len(server.seen) == len(stages)  # one HTTP call per stage, no re-asks
+    for seen, stage in zip(server.seen, stages):
+        schema = seen.json["response_format"]["json_schema"]["schema"]
+        assert list(schema["properties"]) == ["reasoning", stage]
+    # each later prompt carries the earlier stages' answers
+    last_prompt = server.seen[-1].json["messages"][-1]["content"]
+    assert '"action_guidance":{"accel_interval":1,"steer_interval":2}' in last_prompt
+    assert d.source == "llm:test-model" and d.mode == mode
+    assert d.accel_interval == 1 and d.weights.action == "high"
+    assert "car1" in d.attention and core.counters.fallbacks == 0

@@ -8,7 +8,7 @@ import pytest
 from lmpc_msgs_py.messages import AgentArray, SignalStates
 
 from lmpc_llm_planner.assembler import ObservationAssembler
-from lmpc_llm_planner.config import PlannerConfigError, load_planner_config
+from lmpc_llm_planner.config import LOCAL_CONFIG_PATH, PlannerConfigError, load_planner_config
 from lmpc_llm_planner.prompt import build_prompt, estimate_tokens, sanitize_instruction
 from lmpc_llm_planner.scene import build_scene
 
@@ -22,22 +22,24 @@ def scene(left_turn_map, obs_factory, oncoming_factory):
 def test_prompt_content(scene, mpc_config):
     p = build_prompt(scene, mpc_config=mpc_config, instruction="drive conservatively")
     text = p.text
-    assert "car1" in text and "oncoming" in text and "lane N_in_0" in text
+    assert "car1: car" in text and "oncoming" in text and "lane N_in_0" in text
     assert "turn left at the junction (your route)" in text
-    assert "unsignalized" in text and "yields to oncoming traffic" in text
+    assert "unsignalized" in text and "yield to oncoming traffic" in text
     assert '"drive conservatively"' in text
-    for i in range(len(mpc_config.accel_intervals_mps2)):
-        assert f"  [{i}] " in text
+    accel_line = next(line for line in text.splitlines() if line.startswith("Accel"))
+    for i, (lo, hi) in enumerate(mpc_config.accel_intervals_mps2):
+        assert f"{i} {lo:g}..{hi:g}" in accel_line
     assert "Previous decision: none." in text
-    assert p.tokens_estimate == math.ceil(len(text) / 4.0)
+    assert p.tokens_estimate == math.ceil(len(text) / 3.0)
 
 
 def test_emergency_prompt_is_short(scene, mpc_config):
     normal = build_prompt(scene, mpc_config=mpc_config)
     emergency = build_prompt(scene, mpc_config=mpc_config, mode="emergency")
-    assert emergency.tokens_estimate < normal.tokens_estimate < 1500 * 2
-    assert emergency.tokens_estimate < 1500
-    assert "scenario_encoding" not in emergency.text.split("JSON schema")[-1]
+    assert emergency.tokens_estimate < normal.tokens_estimate <= 1500
+    assert emergency.tokens_estimate <= 600
+    assert "scenario_encoding" not in emergency.text
+    assert "junction" not in emergency.text  # no scene description, no candidates
 
 
 def test_retry_prompt_carries_error(scene, mpc_config):
@@ -47,6 +49,8 @@ def test_retry_prompt_carries_error(scene, mpc_config):
 
 def test_estimate_and_sanitize():
     assert estimate_tokens("") == 0 and estimate_tokens("abcde") == 2
+    assert estimate_tokens("abcde", chars_per_token=4.0) == 2
+    assert estimate_tokens("abcdefg") == 3
     assert sanitize_instruction('a\x00b "c"\n\n d' + "x" * 5000).startswith("a b 'c' d")
     assert len(sanitize_instruction("y" * 5000)) == 2000
 
@@ -63,6 +67,9 @@ def test_config_default_and_refusal(tmp_path):
         load_planner_config(bad)
     with pytest.raises(PlannerConfigError, match="backend"):
         load_planner_config(None, overrides={"backend": "gpt-9"})
+    local = load_planner_config(LOCAL_CONFIG_PATH)  # partial file: the rest are defaults
+    assert (local.backend, local.fixed_latency_s) == ("local", 2.5)
+    assert local.deadline_s > 8.0 and local.period_s == cfg.period_s
 
 
 def test_assembler_matches_stamps(left_turn_map, obs_factory):

@@ -29,6 +29,10 @@ import json
 from typing import Any, Mapping, Optional
 
 from lmpc_llm_planner.backends.base import DecisionRequest
+from lmpc_llm_planner.prompt import answer_outline
+from lmpc_llm_planner.schema import describe_schema
+
+__all__ = ["SYSTEM_PROMPT", "compact_prompt", "describe_schema", "narrow_schema", "neutral_index"]
 
 REASONING_FIELD = "reasoning"
 
@@ -136,53 +140,22 @@ def narrow_schema(
     return schema
 
 
-def describe_schema(schema: Mapping[str, Any], defs: Optional[Mapping[str, Any]] = None) -> str:
-    """A short JSON-like outline of ``schema`` (fields in order, choices spelled out).
-
-    For grammar-constrained backends: the grammar enforces the schema, so the prompt
-    only needs to say what goes where, in far fewer tokens than the schema itself.
-    """
-    defs = defs if defs is not None else (schema.get("$defs") or {})
-    ref = schema.get("$ref")
-    if isinstance(ref, str):
-        schema = defs.get(ref.split("/")[-1], {})
-    if "enum" in schema:
-        return "|".join(json.dumps(v) for v in schema["enum"]) or "(none)"
-    kind = schema.get("type")
-    if kind == "object":
-        props = schema.get("properties") or {}
-        required = set(schema.get("required") or ())
-        parts = [
-            f"{json.dumps(k)}{'' if k in required else '?'}: {describe_schema(v, defs)}"
-            for k, v in props.items()
-        ]
-        extra = schema.get("additionalProperties")
-        if isinstance(extra, dict):
-            parts.append(f"<id>: {describe_schema(extra, defs)}")
-        return "{" + ", ".join(parts) + "}"
-    if kind == "array":
-        if schema.get("maxItems") == 0:
-            return "[]"
-        return "[" + describe_schema(schema.get("items") or {}, defs) + ", ...]"
-    if kind == "string":
-        cap = schema.get("maxLength")
-        return f"string (at most {cap} characters)" if cap else "string"
-    return str(kind or "value")
-
-
 def compact_prompt(request: DecisionRequest, schema: Mapping[str, Any]) -> str:
-    """``request.prompt`` with the embedded JSON schema replaced by its outline
-    (:func:`describe_schema` of ``schema``); unchanged when the schema text is not found.
+    """``request.prompt`` with its generic answer outline (``prompt.answer_outline``)
+    replaced by the outline of ``schema``, the schema narrowed to this request (offered
+    choices spelled out, baseline first); unchanged when the outline is not found.
 
-    The planner's prompt embeds ``json.dumps(request.json_schema)`` verbatim (prompt.py);
-    for the 135M local model that is ~600 of ~1500 tokens and costs ~10 s of prompt
-    evaluation on one core, while the grammar already enforces it.
+    A grammar-constrained model copies what it reads: the narrowed outline shows it the
+    values the grammar will accept. (Before the prompt carried only an outline, this
+    replaced ~600 tokens of embedded JSON schema; that text is still recognised.)
     """
+    generic = answer_outline(mode=request.mode, stage=request.stage)
     full = json.dumps(dict(request.json_schema), separators=(",", ":"))
-    if full not in request.prompt:
-        return request.prompt
-    return request.prompt.replace(
-        full, describe_schema(schema) + " (fields marked ? are optional)", 1)
+    for old in (generic, full):
+        if old in request.prompt:
+            return request.prompt.replace(
+                old, describe_schema(schema) + " (fields marked ? are optional)", 1)
+    return request.prompt
 
 
 SYSTEM_PROMPT = (

@@ -15,9 +15,10 @@ never imported (importing it needs the unrelated ``llm`` CLI tool).
   ``request.deadline_s`` (``error_kind="timeout"``); a call that arrives while an
   abandoned one still runs waits for it up to its own deadline.
 - ``n_threads`` (default 1) for generation and prompt evaluation, so the MPC keeps a core.
-- ``compact_schema``: the JSON schema the planner's prompt embeds is replaced by a short
-  outline (``constrain.compact_prompt``): the grammar enforces it anyway, and on one
-  core those ~600 tokens cost about as much as the rest of the prompt.
+- The prompt carries a generic outline of the answer (``prompt.answer_outline``);
+  ``spell_out_choices`` replaces it by the narrowed schema's outline
+  (``constrain.compact_prompt``), on by default: a small model copies the first choice
+  it reads, and the narrowed outline lists the baseline choice first.
 - The prompt is evaluated in ``n_batch`` slices with a deadline check between them,
   then tokens are streamed; the call stops at the first check past the deadline.
 
@@ -156,7 +157,7 @@ class LocalBackend:
     # -- internals -------------------------------------------------------------------------
     def _generate(self, request: DecisionRequest, t0: float, t_end: float) -> BackendReply:
         schema = narrow_schema(request, max_reasoning_chars=self.config.max_reasoning_chars)
-        user_text = compact_prompt(request, schema) if self.config.compact_schema else None
+        user_text = compact_prompt(request, schema) if self.config.spell_out_choices else None
         prompt = self.chat_prompt(request, user_text=user_text)
         tokens = self.tokenize(prompt.text)
         tokens_in = len(tokens)

@@ -17,15 +17,14 @@ stage and prompt hash, so the planner falls back as for any failed call.
 
 What is repeated: the raw text (refused text is refused again, so re-asks and
 fallbacks repeat), a recorded timeout / transport failure, the token counts, and the
-latency. ``latency: sleep`` takes each call's recorded wall time (capped just below
-the request's deadline, so a recorded timeout stays a timeout), so the planner measures
-about the recorded decision latency; this is APPROXIMATE (scheduling, prompt building:
-milliseconds when idle, tens of ms on a loaded machine). ``latency: report`` answers at
-once and reports latencies whose sum over a decision's calls is exactly the recorded
-decision latency (all of it on the decision's first call); it sets
-``reports_latency = True`` for a planner that takes backend-reported latencies instead
-of its wall clock (see docs/lmpc_llm_planner.md, "Backends": a hook PlannerCore lacks
-so far).
+latency. ``latency: report`` (default) answers at once and reports latencies whose sum
+over a decision's calls is exactly the recorded decision latency (all of it on the
+decision's first call); it sets ``reports_latency = True``, and ``PlannerCore`` then takes
+that sum as the decision's latency: the replayed decision takes effect at the recorded
+sim time (an exact repeat). ``latency: sleep`` spends each call's recorded wall time
+(capped just below the request's deadline, so a recorded timeout stays a timeout), so
+the planner measures about the recorded decision latency; this is APPROXIMATE
+(scheduling, prompt building: milliseconds when idle, tens of ms on a loaded machine).
 """
 from __future__ import annotations
 
