@@ -19,29 +19,48 @@ class StaleMessage(Exception):
         self.reason = reason
 
 
+RESYNC_AFTER = 5
+"""Consecutive refusals after which the gate follows the stream it keeps refusing."""
+
+
 @dataclass
 class SequenceGate:
     """Accepts a message only if its ``seq`` is newer than every one seen before.
 
-    A publisher that restarts begins again at 0; a ``seq`` of 0 after a gap
-    resets the gate, so a restarted bridge is accepted (its stamps restart too).
+    Two cases look like "backwards" but are not a fault of the stream: a publisher
+    that restarted (it begins again at 0) and a single forged or corrupted message
+    with a huge ``seq`` that would otherwise block the real stream for good. Both
+    show as a run of refusals; after :data:`RESYNC_AFTER` consecutive ones the gate
+    re-synchronises on the stream that keeps arriving (a restart costs 5 messages,
+    0.5 s at 10 Hz; a lone bad ``seq`` cannot silence a topic). One exception: the
+    first message (``seq`` 0) may come again while the stream has not moved on, since
+    the bridge re-offers step 0 while discovery settles; once past 0, an injected or
+    replayed 0 is refused like any other backwards ``seq``.
     """
 
     topic: str
     last_seq: Optional[int] = None
     refused: int = field(default=0)
+    resyncs: int = field(default=0)
+    _run: int = field(default=0, repr=False)
 
     def check(self, seq: int) -> None:
         """Raise :class:`StaleMessage` for a duplicate or backwards ``seq``."""
         last = self.last_seq
-        if last is not None and seq <= last and seq != 0:
-            self.refused += 1
-            what = "duplicate" if seq == last else f"goes backwards ({seq} after {last})"
-            raise StaleMessage(self.topic, "seq", what)
+        reoffer = seq == 0 and last == 0
+        if last is not None and seq <= last and not reoffer:
+            self._run += 1
+            if self._run < RESYNC_AFTER:
+                self.refused += 1
+                what = "duplicate" if seq == last else f"goes backwards ({seq} after {last})"
+                raise StaleMessage(self.topic, "seq", what)
+            self.resyncs += 1
+        self._run = 0
         self.last_seq = seq
 
     def reset(self) -> None:
         self.last_seq = None
+        self._run = 0
 
 
 def is_stale(stamp_s: float, now_s: float, bound_s: float) -> bool:

@@ -19,6 +19,7 @@ from lmpc_msgs_py import (
     is_stale,
 )
 from lmpc_msgs_py.codec import MAX_PAYLOAD_BYTES
+from lmpc_msgs_py.freshness import RESYNC_AFTER
 
 TOPIC = "/lmpc/ego_state"
 
@@ -151,15 +152,46 @@ def test_every_message_is_frozen_and_strict() -> None:
 
 def test_sequence_gate_refuses_duplicates_and_backwards() -> None:
     gate = SequenceGate("/lmpc/control")
+    gate.check(0)
+    gate.check(0)  # step 0 re-offered while discovery settles
     gate.check(1)
     gate.check(2)
     with pytest.raises(StaleMessage, match="duplicate"):
         gate.check(2)
     with pytest.raises(StaleMessage, match="backwards"):
         gate.check(1)
-    gate.check(0)  # a restarted publisher begins again at 0
+    with pytest.raises(StaleMessage, match="backwards"):
+        gate.check(0)  # an injected 0 is no restart by itself
+    gate.check(3)
+    assert gate.refused == 3 and gate.resyncs == 0
+
+
+def test_sequence_gate_follows_a_restarted_publisher() -> None:
+    gate = SequenceGate("/lmpc/ego_state")
+    for seq in range(100, 110):
+        gate.check(seq)
+    accepted = []
+    for seq in range(0, 10):  # the publisher restarted
+        try:
+            gate.check(seq)
+            accepted.append(seq)
+        except StaleMessage:
+            pass
+    assert accepted == list(range(RESYNC_AFTER - 1, 10))
+    assert gate.resyncs == 1 and gate.refused == RESYNC_AFTER - 1
+
+
+def test_sequence_gate_survives_one_forged_huge_seq() -> None:
+    gate = SequenceGate("/lmpc/control")
     gate.check(1)
-    assert gate.refused == 2
+    gate.check(10**12)  # forged / corrupted, but a valid message
+    refused = 0
+    for seq in range(2, 20):
+        try:
+            gate.check(seq)
+        except StaleMessage:
+            refused += 1
+    assert refused == RESYNC_AFTER - 1 and gate.last_seq == 19
 
 
 def test_staleness_bound() -> None:
