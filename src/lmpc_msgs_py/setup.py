@@ -10,7 +10,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
     ],
-    install_requires=["setuptools", "pydantic>=2.7,<3"],
+    install_requires=["setuptools", "pydantic>=2.7,<3", "pyyaml>=6,<7"],
     python_requires=">=3.10",
     zip_safe=True,
     maintainer="LanguageMPC ROS 2 maintainers",

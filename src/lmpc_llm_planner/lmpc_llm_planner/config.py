@@ -8,8 +8,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal, Optional
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from lmpc_msgs_py.yamlfile import first_field_error, read_mapping
 
 DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent / "config" / "planner.yaml"
 LOCAL_CONFIG_PATH = Path(__file__).resolve().parent / "config" / "planner_local.yaml"
@@ -214,21 +215,9 @@ def load_planner_config(
     Raises :class:`PlannerConfigError` naming the file, the field and the reason.
     """
     file = Path(path) if path else DEFAULT_CONFIG_PATH
-    try:
-        data = yaml.safe_load(file.read_text(encoding="utf-8")) or {}
-    except OSError as exc:
-        raise PlannerConfigError(f"cannot read planner config {file}: {exc}") from None
-    except yaml.YAMLError as exc:
-        raise PlannerConfigError(f"planner config {file} is not valid YAML: {exc}") from None
-    if not isinstance(data, dict):
-        raise PlannerConfigError(f"planner config {file} must be a mapping of fields")
+    data = read_mapping(file, what="planner config", error=PlannerConfigError)
     data.update(overrides or {})
     try:
         return PlannerConfig.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors(include_url=False)[0]
-        loc = ".".join(str(p) for p in err["loc"]) or "<file>"
-        raise PlannerConfigError(
-            f"planner config {file}: field '{loc}': {err['msg']}"
-            + (f" (+{exc.error_count() - 1} more)" if exc.error_count() > 1 else "")
-        ) from None
+        raise PlannerConfigError(first_field_error("planner config", file, exc)) from None

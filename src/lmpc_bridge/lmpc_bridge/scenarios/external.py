@@ -41,8 +41,9 @@ import sys
 from pathlib import Path
 from typing import Annotated, Any, Optional
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from lmpc_msgs_py.yamlfile import field_path, read_mapping
 
 from lmpc_bridge.scenarios.base import DEFAULT_MAX_TIME_S, Scene, SceneError
 from lmpc_bridge.scenarios.common import target_on_lanes, write_routes
@@ -155,7 +156,7 @@ class SceneFile(_Spec):
 def _field_errors(path: Path, exc: ValidationError) -> str:
     lines = []
     for err in exc.errors(include_url=False):
-        loc = ".".join(str(p) for p in err["loc"]) or "<top level>"
+        loc = field_path(err)
         msg = err["msg"].removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
             msg = "unknown field (check the spelling; see README 'Your own network')"
@@ -166,14 +167,7 @@ def _field_errors(path: Path, exc: ValidationError) -> str:
 def load_scene_file(path: str | Path) -> SceneFile:
     """Read and validate a scene file (SceneError with one line per bad field)."""
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise SceneError(f"scene file {path}: cannot read it ({exc.strerror})") from None
-    except yaml.YAMLError as exc:
-        raise SceneError(f"scene file {path}: not valid YAML ({exc})") from None
-    if not isinstance(data, dict):
-        raise SceneError(f"scene file {path}: expected a mapping of fields at the top level")
+    data = read_mapping(path, what="scene file", error=SceneError)
     try:
         return SceneFile.model_validate(data)
     except ValidationError as exc:
