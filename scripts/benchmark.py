@@ -9,6 +9,7 @@ change of each method against ``mpc``).
 
     benchmark.py --families usi --seeds 0-24 --methods mpc,lmpc-rules --out runs/bench
     benchmark.py --scene examples/city.yaml --methods mpc,lmpc-rules   # your own network
+    benchmark.py --families lane --methods lmpc-rules --instruction "drive aggressively"
 """
 from __future__ import annotations
 
@@ -56,7 +57,10 @@ def _percentile(values: Sequence[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, max(0, math.ceil(q * len(ordered)) - 1))]
 
 
-def make_planner(method: str) -> Any:
+def make_planner(method: str, instruction: Optional[str] = None) -> Any:
+    """The planner core of ``method`` (None for the ``mpc`` baseline); ``instruction``
+    reaches it as the user's text through ``PlannerCore.on_instruction``, as the node's
+    ``/lmpc/instruction`` subscription does."""
     if method == "mpc":
         return None
     from lmpc_llm_planner.backends import make_backend
@@ -66,7 +70,10 @@ def make_planner(method: str) -> Any:
 
     backend_name = method.removeprefix("lmpc-")
     config = load_planner_config(overrides={"backend": backend_name})
-    return PlannerCore(config, make_backend(config), load_mpc_config())
+    core = PlannerCore(config, make_backend(config), load_mpc_config())
+    if instruction:
+        core.on_instruction(instruction)
+    return core
 
 
 class _SceneFileSim:
@@ -84,14 +91,16 @@ class _SceneFileSim:
 
 
 def run_scene(method: str, family: str, seed: int, work_dir: str,
-              scene_file: Optional[str] = None) -> dict[str, Any]:
+              scene_file: Optional[str] = None,
+              instruction: Optional[str] = None) -> dict[str, Any]:
     """One episode in this worker process; returns its results row.
 
     With ``scene_file`` the episode runs that scene description (``family`` and
     ``seed`` are then its name and SUMO seed, for the row). Anything that raises gives
-    an ``error`` row with the reason (exceptions holding SUMO objects do not pickle)."""
+    an ``error`` row with the reason (exceptions holding SUMO objects do not pickle).
+    ``instruction``: the user's text for the planner (ignored by ``mpc``)."""
     try:
-        return _run_scene(method, family, seed, work_dir, scene_file)
+        return _run_scene(method, family, seed, work_dir, scene_file, instruction)
     except Exception as exc:  # noqa: BLE001 - one broken scene must not end the run
         return error_row(method, family, seed, f"{type(exc).__name__}: {exc}")
 
@@ -104,7 +113,8 @@ def error_row(method: str, family: str, seed: int, detail: str) -> dict[str, Any
 
 
 def _run_scene(method: str, family: str, seed: int, work_dir: str,
-               scene_file: Optional[str]) -> dict[str, Any]:
+               scene_file: Optional[str], instruction: Optional[str] = None
+               ) -> dict[str, Any]:
     global _SIM, _SOLVER
     from lmpc_bridge.runner import run_episode
     from lmpc_bridge.sim import SumoSim
@@ -129,7 +139,7 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
         sim, max_time_s = _SceneFileSim(_SIM, scene), scene.max_time_s
     result = run_episode(sim, family=family, seed=seed,
                          controller=MpcController(config, solver=_SOLVER),
-                         planner=make_planner(method), max_time_s=max_time_s)
+                         planner=make_planner(method, instruction), max_time_s=max_time_s)
     m = result.metrics
     return {
         "family": family, "seed": seed, "method": method, "outcome": result.outcome,
@@ -201,6 +211,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("runs/bench"))
     ap.add_argument("--scene", type=Path,
                     help="run this scene description (YAML) instead of families / seeds")
+    ap.add_argument("--instruction", default=None, metavar="TEXT",
+                    help="the user's instruction for the planner (e.g. 'drive conservatively'"
+                         "); the mpc baseline ignores it")
     args = ap.parse_args(argv)
     families = [f.strip() for f in args.families.split(",") if f.strip()]
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
@@ -225,8 +238,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     rows: list[dict[str, Any]] = []
     t0 = time.monotonic()
     with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
-        futures = {pool.submit(run_scene, m, f, s, work_dir, scene_file): (m, f, s)
-                   for m, f, s in jobs}
+        futures = {pool.submit(run_scene, m, f, s, work_dir, scene_file, args.instruction):
+                   (m, f, s) for m, f, s in jobs}
         for fut in as_completed(futures):
             m, f, s = futures[fut]
             try:
@@ -248,7 +261,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     summary = aggregate(rows)
     (args.out / "summary.json").write_text(json.dumps(
         {"families": summary, "wall_time_s": round(time.monotonic() - t0, 1),
-         "workers": args.workers, "seeds": args.seeds}, indent=2))
+         "workers": args.workers, "seeds": args.seeds, "instruction": args.instruction},
+        indent=2))
     table = table_md(summary)
     (args.out / "table.md").write_text(table)
     print(table)

@@ -8,6 +8,12 @@ and writes a summary JSON. Exit code: 0 target reached, 1 collision,
 
     run_graph.py --scenario usi --seed 0 --planner rules --clock sync
     run_graph.py --scene examples/city.yaml --planner rules    # your own network
+    run_graph.py --scenario lane --seed 3 --instruction "drive aggressively"
+
+``--instruction TEXT`` is published on ``/lmpc/instruction`` (what a user's tool would
+do) by a short-lived helper process once the planner is up and before the bridge and
+the MPC start, so the first decision already reads it; the run waits until the
+planner logs that it received it.
 """
 from __future__ import annotations
 
@@ -131,6 +137,56 @@ def _wait_for_log(child: Child, needle: str, timeout_s: float) -> None:
     raise RuntimeError(f"{child.name} did not report {needle!r} within {timeout_s:.0f}s")
 
 
+INSTRUCTION_TIMEOUT_S = 60.0
+"""Wall time to get the instruction to the planner (its start-up included)."""
+_PUBLISH_INSTRUCTION = """
+import sys, time
+import rclpy
+from std_msgs.msg import String
+from lmpc_msgs_py import qos, topics
+rclpy.init()
+node = rclpy.create_node("lmpc_instruction")
+pub = node.create_publisher(String, topics.topic(topics.INSTRUCTION, sys.argv[2] or None),
+                            qos.STREAM)
+msg = String()
+msg.data = sys.argv[1]
+try:
+    # volatile topic: publish until the parent sees the planner's receipt and stops us
+    while rclpy.ok():
+        if pub.get_subscription_count() > 0:
+            pub.publish(msg)
+        rclpy.spin_once(node, timeout_sec=0.25)
+except KeyboardInterrupt:
+    pass
+finally:
+    node.destroy_node()
+    rclpy.try_shutdown()
+"""
+
+
+def deliver_instruction(graph: Graph, planner: Child, text: str, *, ego_id: str = "",
+                        timeout_s: float = INSTRUCTION_TIMEOUT_S) -> None:
+    """Publish ``text`` on the instruction topic until ``planner`` logs its receipt.
+
+    A separate process (only node processes import rclpy here), stopped before the
+    bridge and the MPC start: with LOCALHOST discovery Fast DDS serves only four
+    participants per domain (README), so it must not outlive the delivery."""
+    sender = graph.start("instruction", [sys.executable, "-c", _PUBLISH_INSTRUCTION, text,
+                                         ego_id])
+    try:
+        _wait_for_log(planner, "instruction received", timeout_s=timeout_s)
+    finally:
+        if sender.proc.poll() is None:
+            _signal_group(sender.proc, signal.SIGINT)
+        try:
+            sender.proc.wait(5.0)
+        except subprocess.TimeoutExpired:
+            _signal_group(sender.proc, signal.SIGKILL)
+            sender.proc.wait()
+        graph.children.remove(sender)
+        sender.log_file.close()
+
+
 def _signal_group(proc: subprocess.Popen[str], sig: int) -> None:
     try:
         os.killpg(proc.pid, sig)
@@ -168,9 +224,14 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     ap.add_argument("--record", action="store_true",
                     help="record every topic to <run-dir>/bag (rosbag2, MCAP storage)")
     ap.add_argument("--quiet", action="store_true", help="do not echo node logs")
+    ap.add_argument("--instruction", metavar="TEXT",
+                    help="the user's instruction (e.g. 'drive conservatively'), published on "
+                         "/lmpc/instruction before the episode starts")
     args = ap.parse_args(argv)
     if args.planner == "mock" and args.mock_script is None:
         ap.error("--planner mock needs --mock-script FILE")
+    if args.instruction is not None and args.planner == "none":
+        ap.error("--instruction needs a planner (the MPC baseline reads no instruction)")
     return args
 
 
@@ -233,18 +294,28 @@ def run(args: argparse.Namespace) -> dict[str, object]:
         recorder = graph.start("recorder", [sys.executable, str(SCRIPTS / "record.py"),
                                             "--out", str(bag)])
         _wait_for_log(recorder, "recording to", timeout_s=30.0)
-    for name, p in params.items():
-        cpu_set = None
-        if split and name in ("planner", "mock_llm"):
-            cpu_set = {cpus[-1]}
-        elif split and name == "mpc":
-            cpu_set = set(cpus[:-1])
-        graph.start_node(name, NODE_MODULES[name], p, cpus=cpu_set)
-    bridge = next(c for c in graph.children if c.name == "bridge")
-    nodes = [c for c in graph.children if c.name != "recorder"]
+    order = list(params)
+    if args.instruction:
+        # the decision node first: it must hold the instruction before the first step
+        order.sort(key=lambda n: n not in ("planner", "mock_llm"))
     crashed: list[str] = []
     try:
-        while True:
+        for name in order:
+            cpu_set = None
+            if split and name in ("planner", "mock_llm"):
+                cpu_set = {cpus[-1]}
+            elif split and name == "mpc":
+                cpu_set = set(cpus[:-1])
+            child = graph.start_node(name, NODE_MODULES[name], params[name], cpus=cpu_set)
+            if args.instruction and name in ("planner", "mock_llm"):
+                try:
+                    deliver_instruction(graph, child, args.instruction)
+                except RuntimeError as exc:
+                    crashed.append(f"instruction: {exc}")
+                    break
+        bridge = next((c for c in graph.children if c.name == "bridge"), None)
+        nodes = [c for c in graph.children if c.name != "recorder"]
+        while bridge is not None and not crashed:
             if bridge.proc.poll() is not None:
                 break
             for child in nodes:
@@ -270,7 +341,8 @@ def scene_failure(run_dir: Path, args: argparse.Namespace, detail: str) -> dict[
     """Summary of a run that never started because its scene file is wrong."""
     summary: dict[str, object] = {
         "scenario": str(args.scene), "seed": args.seed, "planner": args.planner,
-        "clock": args.clock, "outcome": "error", "detail": detail, "sim_time_s": 0.0,
+        "instruction": args.instruction, "clock": args.clock, "outcome": "error",
+        "detail": detail, "sim_time_s": 0.0,
         "wall_time_s": 0.0, "real_time_factor": None, "collisions": 0, "decisions": 0,
         "fallbacks": 0, "late_controls": 0, "mpc_solve_ms": {}, "control_latency_ms": {},
         "metrics": {}, "nodes": {}, "run_dir": str(run_dir), "bag": None,
@@ -295,15 +367,18 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
     episode = json.loads(episode_path.read_text()) if episode_path.exists() else {}
     outcome = episode.get("outcome", "error")
     detail = episode.get("detail", "")
-    bridge = next(c for c in graph.children if c.name == "bridge")
-    if crashed or interrupted or bridge.proc.returncode not in (0, None) or not episode:
+    bridge = next((c for c in graph.children if c.name == "bridge"), None)
+    bridge_failed = bridge is None or bridge.proc.returncode not in (0, None)
+    if crashed or interrupted or bridge_failed or not episode:
         outcome = "error"
-        reasons = [f"node {c} stopped early" for c in crashed if c != "wall-timeout"]
+        reasons = [c if c.startswith("instruction:") else f"node {c} stopped early"
+                   for c in crashed if c != "wall-timeout"]
         if "wall-timeout" in crashed:
             reasons.append(f"wall timeout {args.wall_timeout_s:.0f}s")
         if interrupted:
             reasons.append("interrupted")
-        scene_errors = [line for line in bridge.lines if line.startswith("scene error:")]
+        scene_errors = [line for line in (bridge.lines if bridge is not None else [])
+                        if line.startswith("scene error:")]
         if scene_errors:
             reasons.append(scene_errors[-1])
         elif not episode:
@@ -315,6 +390,7 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
         "scenario": args.scenario,
         "seed": args.seed,
         "planner": args.planner,
+        "instruction": args.instruction,
         "clock": args.clock,
         "outcome": outcome,
         "detail": detail,

@@ -28,6 +28,9 @@ SIDE_LONGITUDINAL_M = 3.0
 MISS_MARGIN_M = 1.0
 """Extra lateral clearance for the collision-course test."""
 MIN_CLOSING_MPS = 0.1
+ROUTE_CHANGE_PER_LANE_M = 60.0
+"""Road kept per lane change still needed when the ego's lane does not lead on along
+its route: beyond lookahead + this per change, staying in lane counts as the route."""
 STRAIGHT_LINE_HORIZON_S = 5.0
 """Length (in time at the agent's speed) of the straight-line candidate of an off-map agent."""
 
@@ -218,11 +221,27 @@ def _mean_distance_m(a: Candidate, b: Candidate) -> float:
     return float(np.mean(np.hypot(pa[:, 0] - pb[:, 0], pa[:, 1] - pb[:, 1])))
 
 
+def _lane_changes_needed(here: Lane, lanes: Mapping[str, Lane], next_edge: Optional[str]
+                         ) -> int:
+    """Lane changes from ``here`` to the nearest lane of its edge that connects to
+    ``next_edge`` (0 when none does: nothing to gain by changing)."""
+    best: Optional[int] = None
+    for ln in lanes.values():
+        if ln.edge_id != here.edge_id or ln.internal:
+            continue
+        if any(lk.to_lane in lanes and lanes[lk.to_lane].edge_id == next_edge
+               for lk in ln.successors):
+            d = abs(ln.index - here.index)
+            best = d if best is None else min(best, d)
+    return best or 0
+
+
 def ego_candidates(obs: Observation, *, lookahead_m: float) -> tuple[tuple[Candidate, ...], int]:
     """The ego's offered candidates and the index of the one following its route.
 
     When none of the nearest-lane candidates follows the route (no shared route lane
-    ahead), the route candidate replaces the last one, so the route is always offered.
+    ahead), the route candidate is appended (or replaces the last one when three are
+    offered already), so the route is always offered.
     """
     ego = obs.ego
     cands = list(
@@ -238,17 +257,66 @@ def ego_candidates(obs: Observation, *, lookahead_m: float) -> tuple[tuple[Candi
         return (replace(route_c, candidate_id=0),), 0
     ahead = obs.map.ego_route[ego.route_index:]
     route_set = set(ahead)
-    # Lanes beyond the current one decide (every candidate shares the current lane).
+    lanes = {lane.id: lane for lane in obs.map.lanes}
+    here = lanes.get(ego.lane_id or "")
+    here_edge = here.edge_id if here is not None else None
+
+    def edges(ids: Sequence[str]) -> set[str]:
+        # normal (non-junction) edges other than the ego's own
+        return {lanes[i].edge_id for i in ids
+                if i in lanes and not lanes[i].internal and lanes[i].edge_id != here_edge}
+
+    route_edges = edges(ahead)
+    # the route's next normal edge after the ego's (None: the route ends on this edge)
+    next_edge: Optional[str] = None
+    seen_here = False
+    for lid in ahead:
+        lane = lanes.get(lid)
+        if lane is None or lane.internal:
+            continue
+        if lane.edge_id == here_edge:
+            seen_here = True
+        elif seen_here or here_edge is None:
+            next_edge = lane.edge_id
+            break
+    on_route_edge = seen_here
+    continues = here is not None and on_route_edge and (
+        next_edge is None
+        or any(lk.to_lane in lanes and lanes[lk.to_lane].edge_id == next_edge
+               for lk in here.successors))
+    if here is not None and on_route_edge and not continues and not here.internal:
+        # the route needs a lane change on this edge, but not yet: while the edge goes on
+        # well beyond the lookahead, staying in lane still follows the route (the change
+        # can come later, when there is a gap). Otherwise an emergency answer (which takes
+        # the route candidate) would cut across lanes at once, gap or not.
+        need = _lane_changes_needed(here, lanes, next_edge)
+        remaining_m = here.length_m - ego.lane_pos_m
+        continues = remaining_m > lookahead_m + ROUTE_CHANGE_PER_LANE_M * need
+    # Route edges reached beyond the current one decide; then staying in the ego's lane
+    # when the route goes on from it: a parallel lane that leads to the route's next
+    # edge follows the route as well as the route's own lane (the bridge treats
+    # parallel lanes of a route edge as the same progress), so no lane change the route
+    # does not need (e.g. back into the lane of a stopped car the ego has just swerved
+    # round); then shared route lanes, then closeness to the route polyline.
     scores = [
         (
+            len(route_edges & edges(c.lane_ids)),
+            continues and bool(c.lane_ids) and c.lane_ids[0] == ego.lane_id,
             len(route_set.intersection(c.lane_ids) - {ego.lane_id}),
             -_mean_distance_m(c, route_c),
         )
         for c in cands
     ]
     best = max(range(len(cands)), key=lambda i: (scores[i], -i))
-    if scores[best][0] == 0 and -scores[best][1] > 2.0:
-        cands[-1] = route_c
+    if scores[best][0] == 0 and not scores[best][1] and scores[best][2] == 0 \
+            and -scores[best][3] > 2.0:
+        # append while there is room (three offered at most): replacing the last one would
+        # drop a neighbour-lane candidate the rules' lane choice needs (ego two lanes left
+        # of its route lane: keep, change right, route)
+        if len(cands) < 3:
+            cands.append(route_c)
+        else:
+            cands[-1] = route_c
         best = len(cands) - 1
     return _renumber(cands), best
 

@@ -9,12 +9,13 @@ machine is doing: run it on an idle machine for numbers to quote.
 
 ``python -m lmpc_mpc.bench`` (or ``scripts/bench_mpc.py``) prints median / p99 / max
 solve time, the controller's whole ``compute`` time and the solver iterations for
-horizons 20 and 30 and 0, 5, 10, 20 agents, FATROP and IPOPT in the same run, and the
-IPOPT / FATROP ratios. A second table keeps ``--present`` agents (default 20) in the
-scene but attends only the nearest k of them (k from ``--agents``; the controller's
-``max_agents``): only attended agents enter the problem, so this shows what attention
-saves. ``cpu med`` is the process CPU time of ``compute`` (what a loaded machine
-inflates least); the solve columns are wall time.
+horizons 20 and 30 and 0, 5, 10, 20 agents, FATROP, SQP-RTI and IPOPT in the same run,
+and every solver's ratios to the first one named (wall and CPU). A second table keeps
+``--present`` agents (default 20) in the scene but attends only the nearest k of them
+(k from ``--agents``; the controller's ``max_agents``): only attended agents enter the
+problem, so this shows what attention saves. ``cpu med`` is the process CPU time of
+``compute`` and ``solve cpu`` that of the solve (what a loaded machine inflates least);
+the other columns are wall time.
 """
 from __future__ import annotations
 
@@ -29,7 +30,7 @@ from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE
 from lmpc_mpc import synthetic as S
 from lmpc_mpc.config import MpcConfig, load_mpc_config
 from lmpc_mpc.controller import MpcController
-from lmpc_mpc.solver import MpcProblem, MpcResult, MpcSolver, simulate_bicycle
+from lmpc_mpc.solver import SOLVERS, MpcProblem, MpcResult, MpcSolver, simulate_bicycle
 
 _LANES = (("E0_0", -4.8, 0.0, 6.0), ("E0_1", -1.6, 0.0, 7.0), ("-E0_0", 1.6, math.pi, 8.0))
 """(lane id, y_m, yaw_rad, speed_mps) of the lanes the agents are spread over."""
@@ -56,7 +57,11 @@ def run(*, n_agents: int = 10, steps: int = 100, solver: str = "fatrop",
     all in sensing range, the baseline). The first step (which builds the compiled
     problems) is left out of the figures."""
     cfg = config or load_mpc_config()
-    upd: dict[str, object] = {"solver": solver, "time_budget_s": 10.0}
+    name, _, steps_text = solver.partition(":")
+    upd: dict[str, object] = {"solver": name, "time_budget_s": 10.0}
+    if steps_text:
+        # "sqp_rti:1": the RTI with at most this many Gauss-Newton steps per control step
+        upd["rti_iterations"] = int(steps_text)
     if horizon is not None:
         upd["horizon"] = horizon
     if attended is not None:
@@ -123,13 +128,13 @@ def run(*, n_agents: int = 10, steps: int = 100, solver: str = "fatrop",
 
 
 def _table(rows: dict[tuple[int, int, str], dict[str, float]], what: str) -> None:
-    head = (f"{'N':>3} {what:>6} {'solver':>6} | {'median':>7} {'p99':>7} {'max':>7} ms"
+    head = (f"{'N':>3} {what:>6} {'solver':>9} | {'median':>7} {'p99':>7} {'max':>7} ms"
             f" | {'iter med':>8} {'max':>4} | {'compute med':>11} {'p99':>7} | "
             f"{'cpu med':>7} {'p99':>7} ms | {'solve cpu':>9} {'p99':>6} ms | fail")
     print(head)
     print("-" * len(head))
     for (horizon, n_agents, name), r in rows.items():
-        print(f"{horizon:>3} {n_agents:>6} {name:>6} | {r['median_ms']:7.2f} {r['p99_ms']:7.2f}"
+        print(f"{horizon:>3} {n_agents:>6} {name:>9} | {r['median_ms']:7.2f} {r['p99_ms']:7.2f}"
               f" {r['max_ms']:7.2f}    | {r['iter_median']:8.0f} {r['iter_max']:4.0f} | "
               f"{r['compute_median_ms']:11.2f} {r['compute_p99_ms']:7.2f} | "
               f"{r['compute_cpu_median_ms']:7.2f} {r['compute_cpu_p99_ms']:7.2f}    | "
@@ -137,13 +142,30 @@ def _table(rows: dict[tuple[int, int, str], dict[str, float]], what: str) -> Non
               f"{r['failures']:.0f}")
 
 
+def _solver_arg(text: str) -> str:
+    name, _, steps = text.partition(":")
+    if name not in SOLVERS or (steps and (name != "sqp_rti" or not steps.isdigit()
+                                          or int(steps) < 1)):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected one of {', '.join(SOLVERS)} or sqp_rti:K (K >= 1)")
+    return text
+
+
+def _ratio(num: dict[str, float], den: dict[str, float], key: str) -> str:
+    d = den[key]
+    return f"{num[key] / d:.2f}" if d > 0 and math.isfinite(d) else "nan"
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    """Command line: the FATROP / IPOPT table over horizons and agent counts."""
+    """Command line: the solvers' table over horizons and agent counts, then each solver's
+    ratios to the first one named (``--solvers``, default FATROP)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--horizons", type=int, nargs="+", default=[20, 30])
     ap.add_argument("--agents", type=int, nargs="+", default=[0, 5, 10, 20])
-    ap.add_argument("--solvers", nargs="+", default=["fatrop", "ipopt"],
-                    choices=["fatrop", "ipopt"])
+    ap.add_argument("--solvers", nargs="+", default=["fatrop", "sqp_rti", "ipopt"],
+                    type=_solver_arg,
+                    help=f"any of {', '.join(SOLVERS)}; 'sqp_rti:K' caps the RTI at K "
+                         "Gauss-Newton steps per control step (config: rti_iterations)")
     ap.add_argument("--steps", type=int, default=100, help="closed-loop steps per cell")
     ap.add_argument("--present", type=int, default=20,
                     help="agents present in the attention table (0: no such table)")
@@ -171,14 +193,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(f"\n{args.present} agents present, only the nearest k attended "
               f"(the others never enter the problem):")
         _table(att, "k att")
-    if {"fatrop", "ipopt"} <= set(args.solvers):
-        print("\nIPOPT / FATROP (solve time):")
+    base = args.solvers[0]
+    for other in args.solvers[1:]:
+        print(f"\n{other} / {base} (p99 and median; < 1: {other} is faster):")
         for horizon in args.horizons:
             for n_agents in args.agents:
-                f, i = rows[(horizon, n_agents, "fatrop")], rows[(horizon, n_agents, "ipopt")]
+                b, o = rows[(horizon, n_agents, base)], rows[(horizon, n_agents, other)]
                 print(f"  N={horizon:<3} agents={n_agents:<3} "
-                      f"median x{i['median_ms'] / f['median_ms']:.1f}  "
-                      f"p99 x{i['p99_ms'] / f['p99_ms']:.1f}")
+                      f"solve wall med x{_ratio(o, b, 'median_ms')}  "
+                      f"p99 x{_ratio(o, b, 'p99_ms')} | "
+                      f"solve cpu med x{_ratio(o, b, 'solve_cpu_median_ms')}  "
+                      f"p99 x{_ratio(o, b, 'solve_cpu_p99_ms')} | "
+                      f"compute cpu p99 x{_ratio(o, b, 'compute_cpu_p99_ms')}")
     return 0
 
 

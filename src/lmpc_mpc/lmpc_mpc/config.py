@@ -11,12 +11,17 @@ from functools import cached_property
 from pathlib import Path
 from typing import Generic, Literal, TypeVar
 
+import os
+
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from lmpc_msgs_py.messages import WeightLevels
 
 DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent / "config" / "mpc.yaml"
+SOLVER_ENV = "LMPC_MPC_SOLVER"
+"""Environment variable that overrides the config's ``solver`` (benchmarks pick the
+solver this way without a config file of their own)."""
 
 _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
@@ -138,8 +143,19 @@ class MpcConfig(BaseModel):
     """Number of control steps N in the horizon."""
     dt_s: float = Field(0.1, gt=0.0, le=1.0)
     """Step length of the model and the control loop [s]."""
-    solver: Literal["fatrop", "ipopt"] = "fatrop"
-    """NLP solver: FATROP (stage-wise, fast) or IPOPT (general, slower)."""
+    solver: Literal["fatrop", "ipopt", "sqp_rti"] = "fatrop"
+    """``fatrop`` / ``ipopt``: the NLP solved to tolerance by FATROP (stage-wise) or IPOPT
+    (general, slower); ``sqp_rti``: real-time iteration, one Gauss-Newton QP per step
+    from the shifted previous solution (``lmpc_mpc.rti``). The environment variable
+    ``LMPC_MPC_SOLVER`` overrides the file (see :func:`load_mpc_config`)."""
+    rti_iterations: int = Field(1, ge=1, le=50)
+    """``sqp_rti``: Gauss-Newton SQP steps per control step from a warm start."""
+    rti_cold_iterations: int = Field(5, ge=1, le=50)
+    """``sqp_rti``: steps from a cold start (first step, after a failure or a reset),
+    where the guess is a plain roll-out and one step is not enough."""
+    rti_qp_solver: Literal["hpipm"] = "hpipm"
+    """``sqp_rti``: the structured QP solver (HPIPM ships in the CasADi wheel; FATROP's
+    QP interface was far slower, see docs/lmpc_mpc.md)."""
     time_budget_s: float = Field(0.05, gt=0.0, le=10.0)
     """Wall time one solve may take [s]. A slower solve counts as a failure only when
     ``enforce_time_budget`` is on; otherwise it is counted (``over_budget``) and used."""
@@ -246,6 +262,7 @@ def _neutral(intervals: tuple[Interval, ...]) -> int:
 def load_mpc_config(path: str | Path | None = None) -> MpcConfig:
     """Load and validate the MPC config (``None``: the packaged ``config/mpc.yaml``).
 
+    ``LMPC_MPC_SOLVER`` (if set and not empty) replaces the file's ``solver``.
     Raises :class:`MpcConfigError` naming the file, the field and the reason.
     """
     file = Path(path) if path is not None and str(path) != "" else DEFAULT_CONFIG_PATH
@@ -259,6 +276,9 @@ def load_mpc_config(path: str | Path | None = None) -> MpcConfig:
         raise MpcConfigError(f"MPC config {file} is not valid YAML: {exc}") from None
     if not isinstance(data, dict):
         raise MpcConfigError(f"MPC config {file} must be a mapping of fields, got {type(data)}")
+    override = os.environ.get(SOLVER_ENV, "").strip()
+    if override:
+        data = {**data, "solver": override}
     try:
         return MpcConfig.model_validate(data)
     except ValidationError as exc:
@@ -266,6 +286,8 @@ def load_mpc_config(path: str | Path | None = None) -> MpcConfig:
         loc = ".".join(str(p) for p in err["loc"]) or "<file>"
         more = exc.error_count() - 1
         extra = f" (+{more} more)" if more else ""
+        if override and loc == "solver":
+            extra += f" (set by the environment variable {SOLVER_ENV})"
         raise MpcConfigError(
             f"MPC config {file}: field '{loc}': {err['msg']}{extra}"
         ) from None

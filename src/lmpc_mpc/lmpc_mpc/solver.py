@@ -1,4 +1,4 @@
-"""The CasADi MPC of DESIGN §4 (kinematic bicycle, LanguageMPC cost), FATROP or IPOPT.
+"""The CasADi MPC of DESIGN §4 (kinematic bicycle, LanguageMPC cost): FATROP, IPOPT or RTI.
 
 Problem (stage-wise, so FATROP's structure detection finds the OCP):
 
@@ -29,6 +29,11 @@ parameters of one compiled problem per number of obstacle slots *per stage*
 (``agent_slot_sizes``, all built on first use). Unused slots have ``on = 0`` and add no
 cost. Variables are declared in stage order (x_0, u_0, x_1, ...), the previous two
 controls ride in the state, so FATROP's manual structure (nx 8, nu 2) holds exactly.
+
+``solver: sqp_rti`` solves the same problem by real-time iteration instead
+(:mod:`lmpc_mpc.rti`: Gauss-Newton QPs with HPIPM, warm-started from the shifted
+previous solution, ``rti_iterations`` steps per control step); the parameters, the
+obstacle packing and the fallbacks are shared.
 """
 from __future__ import annotations
 
@@ -42,6 +47,7 @@ import numpy as np
 
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
 from lmpc_mpc.config import MpcConfig, ResolvedWeights
+from lmpc_mpc.rti import RtiQp
 
 NX = 8
 NU = 2
@@ -65,6 +71,11 @@ _MU_INIT = 1e-1
 """FATROP's initial barrier parameter. Smaller values save iterations (1e-3: 6 -> 4
 median) but keep the solution in the warm start's basin: in the oncoming-car test the
 ego then crept behind the passed car instead of turning (see docs/lmpc_mpc.md)."""
+
+
+SOLVERS = ("fatrop", "ipopt", "sqp_rti")
+"""Selectable solvers: the NLP with FATROP's or IPOPT's interior-point method, or the
+real-time iteration (one Gauss-Newton QP per step, HPIPM; :mod:`lmpc_mpc.rti`)."""
 
 
 class MpcInputError(ValueError):
@@ -198,11 +209,12 @@ class MpcSolver:
         self.config = config
         self.vehicle = vehicle
         self.solver_name = solver or config.solver
-        if self.solver_name not in ("fatrop", "ipopt"):
-            raise ValueError(f"solver must be 'fatrop' or 'ipopt', got {self.solver_name!r}")
+        if self.solver_name not in SOLVERS:
+            raise ValueError(f"solver must be one of {SOLVERS}, got {self.solver_name!r}")
         self.n = config.horizon
         self.dt_s = config.dt_s
         self._compiled: dict[int, _Compiled] = {}
+        self._rti: dict[int, RtiQp] = {}
         self._warm: Optional[np.ndarray] = None
         self._warm_slots: Optional[int] = None
         self.enforce_time_budget = config.enforce_time_budget
@@ -349,7 +361,17 @@ class MpcSolver:
     def warm_up(self) -> None:
         """Build every compiled size now (~0.3 s each) so no step pays for it later."""
         for size in self.config.agent_slot_sizes:
-            self.compiled(size)
+            if self.solver_name == "sqp_rti":
+                self.rti(size)
+            else:
+                self.compiled(size)
+
+    def rti(self, n_slots: int) -> RtiQp:
+        """The RTI QP of ``n_slots`` obstacle slots (built on first use, ~0.1-0.5 s)."""
+        if n_slots not in self._rti:
+            self._rti[n_slots] = RtiQp(horizon=self.n, dt_s=self.dt_s, vehicle=self.vehicle,
+                                       n_slots=n_slots, qp_solver=self.config.rti_qp_solver)
+        return self._rti[n_slots]
 
     def compiled(self, n_slots: int) -> _Compiled:
         """The problem of ``n_slots`` obstacle slots (built on first use, ~0.1-1 s)."""
@@ -579,7 +601,7 @@ class MpcSolver:
     def solve(self, problem: MpcProblem) -> MpcResult:
         """Solve one step. Never returns an unconverged or non-finite solution as success."""
         n = self.n
-        if not self._compiled:
+        if not self._compiled and not self._rti:
             self.warm_up()
         t0 = time.perf_counter()  # compiling is not part of the solve time
         self._cpu0 = time.process_time()
@@ -587,6 +609,8 @@ class MpcSolver:
             p, x0, n_slots = self._params(problem)
         except MpcInputError as exc:
             return self._fail(f"bad input: {exc}", t0, 0)
+        if self.solver_name == "sqp_rti":
+            return self._solve_rti(p, x0, n_slots, t0)
         comp = self.compiled(n_slots)
         w0 = self._initial_guess(x0, n_slots)
         try:
@@ -612,6 +636,49 @@ class MpcSolver:
             return self._fail(f"not converged: {status}", t0, iters, elapsed)
         if not (np.all(np.isfinite(xs)) and np.all(np.isfinite(us))):
             return self._fail("non-finite solution", t0, iters, elapsed)
+        return self._accept(stage, n_slots, status, t0, iters, elapsed)
+
+    def _solve_rti(self, p: np.ndarray, x0: np.ndarray, n_slots: int,
+                   t0: float) -> MpcResult:
+        """One real-time iteration (``rti_iterations`` Gauss-Newton QP steps; from a cold
+        start ``rti_cold_iterations``) from the shifted previous solution."""
+        n = self.n
+        qp = self.rti(n_slots)
+        cold = self._warm is None
+        guess = self._initial_guess(x0, n_slots)
+        stage = np.empty((n + 1, NX + NU))
+        stage.ravel()[: len(guess)] = guess
+        z = qp.from_stages(stage[:, :NX], stage[:n, NX:])
+        steps = self.config.rti_cold_iterations if cold else self.config.rti_iterations
+        # from a cold start (a plain roll-out) iterate close to convergence; warm, a step
+        # that moved no control by more than 0.1 m/s^2 / 0.01 rad ends the iteration
+        tol = (1e-3, 1e-4) if cold else (0.1, 0.01)
+        try:
+            step = qp.iterate(z, p, x0, steps=steps, accel_tol_mps2=tol[0],
+                              steer_tol_rad=tol[1])
+        except RuntimeError as exc:  # CasADi raises on evaluation errors
+            return self._fail(f"solver error: {str(exc).splitlines()[0][:120]}", t0, 0)
+        elapsed = time.perf_counter() - t0
+        if not step.ok:
+            return self._fail(f"not converged: {step.status}", t0, step.sqp_steps, elapsed)
+        xs, us = qp.to_stages(step.z)
+        out = np.empty((n + 1, NX + NU))
+        out[:, :NX] = xs
+        out[:n, NX:] = us[:, :NU]
+        out[n, NX:] = out[n - 1, NX:]
+        if not np.all(np.isfinite(out)):
+            return self._fail("non-finite solution", t0, step.sqp_steps, elapsed)
+        status = (f"{step.status} ({step.sqp_steps} step{'s' if step.sqp_steps > 1 else ''}, "
+                  f"{step.qp_iterations} QP iterations)")
+        # an RTI "iteration" is one Gauss-Newton SQP step (the NLP solvers' counterpart)
+        return self._accept(out, n_slots, status, t0, step.sqp_steps, elapsed)
+
+    def _accept(self, stage: np.ndarray, n_slots: int, status: str, t0: float, iters: int,
+                elapsed: float) -> MpcResult:
+        """A solution that passed the checks: budget, warm start, clipped first control."""
+        n = self.n
+        xs = stage[:, :NX]
+        us = stage[:n, NX:]
         if elapsed > self.config.time_budget_s:
             self.over_budget += 1
         if elapsed > self.config.time_budget_s and self.enforce_time_budget:

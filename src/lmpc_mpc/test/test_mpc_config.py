@@ -51,7 +51,10 @@ def test_bias_index_out_of_range_is_refused() -> None:
     (lambda d: d.update(steer_intervals_rad=[[0.1, 0.3], [0.3, 0.6]]), "contains 0"),
     (lambda d: d.update(dt_s=float("nan")), "dt_s"),
 ])
-def test_bad_config_names_the_field(tmp_path: Path, mutate, field: str) -> None:
+def test_bad_config_names_the_field(tmp_path: Path, mutate, field: str,
+                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    # the file's own value is under test: no LMPC_MPC_SOLVER override from the caller
+    monkeypatch.delenv("LMPC_MPC_SOLVER", raising=False)
     data = _default()
     mutate(data)
     with pytest.raises(MpcConfigError, match=field.replace(".", r"\.")):

@@ -20,10 +20,17 @@ Rules (docs/lmpc_llm_planner.md, "The rules backend", has the numbers):
    braking bias, safety "high".
 5. Otherwise go: accelerating (below 80 % of the speed limit) or neutral bias,
    normal weights.
-Emergency requests run the same rules; only a threat in the ego's path with a TTC
-under ``commit_ttc_s`` brakes at the strongest interval.
-An instruction mentioning careful / conservative / cautious driving lengthens the
-safe gap and raises the safety weight. The time and gap estimates are
+6. Lane choice on multi-lane roads (rule 8, docs/lmpc_rules.md): leave a lane the user
+   says is closed or one blocked by a standing vehicle (stopping ~10 m short of it while
+   the next lane has no gap), move towards the lanes the route needs, overtake a slow
+   leader (not when conservative); gap checks for the new leader / follower.
+Emergency requests run the same rules (no lane choice: the answer has no scenario
+encoding); only a threat in the ego's path with a TTC under ``commit_ttc_s`` brakes at
+the strongest interval.
+The instruction is parsed by ``parse_instruction`` (keyword rules): a style
+(conservative: longer gaps, safety high, no overtaking; aggressive: shorter lane-change
+gaps, overtaking, late merges — never shorter turn gaps), closed lanes, and refused
+parts (ignore a light, a speed figure), which change nothing. The time and gap estimates are
 APPROXIMATIONS (constant speeds, straight agent paths), documented in route.py.
 """
 from __future__ import annotations
@@ -37,6 +44,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from lmpc_msgs_py.messages import Lane
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE
 
 from lmpc_llm_planner.backends.base import BackendReply, DecisionRequest
@@ -44,14 +52,107 @@ from lmpc_llm_planner.config import RulesConfig
 from lmpc_llm_planner.route import Maneuver, crossing, next_maneuver
 from lmpc_llm_planner.scene import AgentView, Scene, wrap_rad
 
-CONSERVATIVE_WORDS = re.compile(r"\b(careful|carefully|conservative|conservatively|cautious"
-                                r"|cautiously|defensive|defensively|safe|safely|slow)\b", re.I)
+CONSERVATIVE_WORDS = re.compile(
+    r"\b(careful|carefully|conservative|conservatively|cautious|cautiously|defensive"
+    r"|defensively|safe|safely|calm|calmly|gentle|gently|relaxed"
+    # "slow" asks for slow driving, "slow traffic / cars" describes others
+    r"|slow(ly)?(?!\s+(traffic|cars?|leaders?|vehicles?|trucks?|lanes?)))\b", re.I)
 CROSSING_MISS_M = 4.0
 """An agent's ray passing the ego's path farther than this does not cross it."""
 CLEAR_MARGIN_M = 1.0
 _GO_ZONE_M = 8.0
 """With a safe gap and the front this close to the stop line, the ego turns briskly
 (accelerating) instead of holding its approach speed."""
+
+AGGRESSIVE_WORDS = re.compile(r"\b(aggressive|aggressively|assertive|assertively|hurry|rush"
+                              r"|rushing|fast|faster|quick|quickly|sporty|overtake|overtaking"
+                              r"|late|urgent|urgently)\b", re.I)
+_NEGATION = re.compile(r"\b(not|don't|dont|never|no|avoid|without)\W+(\w+\W+){0,2}$", re.I)
+CLOSED_LANE = re.compile(
+    r"\b(?P<side>right|left)(?:most|-most| hand)?\s+lane\b[^.;!?]*?"
+    r"\b(?:is|are|will be|gets)?\s*(?:closed|blocked|shut|under construction|"
+    r"ends|ending)\b", re.I)
+CLOSED_LANE_REV = re.compile(
+    r"\b(?:closed|blocked|shut)\s+(?P<side>right|left)(?:most)?\s+lane\b", re.I)
+UNSAFE_REQUEST = re.compile(
+    r"\b(ignore|run|skip|disregard)\b[^.;!?]*\b(red|light|lights|signal|signals|rule|"
+    r"rules|stop|sign|limit)\b|\b\d+(\.\d+)?\s*(m/s|mps|km/h|kmh|kph|mph)\b", re.I)
+
+# -- lane choice on multi-lane roads (rule 8; docs/lmpc_rules.md) ---------------------------
+LANE_MERGE_PER_CHANGE_M = 70.0
+"""Road needed per lane change before the end of the edge (+ ``LANE_MERGE_SLACK_M``); the
+aggressive style keeps its lane until ``LANE_MERGE_AGGRESSIVE`` of that is left."""
+LANE_MERGE_SLACK_M = 60.0
+LANE_MERGE_FORCE_M = 60.0
+"""Aggressive style: this close to the end of the edge the route's lane change is made
+along the route candidate without waiting for a gap (else the exit would be missed)."""
+LANE_MERGE_AGGRESSIVE = 0.8
+"""Aggressive style: the lane changes the route needs start within this fraction of
+``need * LANE_MERGE_PER_CHANGE_M + LANE_MERGE_SLACK_M`` before the edge ends (others: at
+once)."""
+SLOW_LEADER_RANGE_M = 60.0
+"""A leader in the ego's lane farther than this does not make it change lanes."""
+SLOW_LEADER_GAIN_MPS = 2.0
+"""A neighbour lane must be at least this much faster (its leader's speed, or the limit
+with no leader in range) than the ego's lane for an overtake (aggressive: 1 m/s)."""
+SLOW_LEADER_FRACTION = 0.8
+"""A leader counts as slow below this fraction of the speed limit."""
+LC_MIN_GAP_M = 6.0
+"""Bumper gap to the new leader / follower a lane change needs at least."""
+LC_HEADWAY_S = 0.8
+"""Plus this many seconds at the follower's (rear) or the ego's (front) speed."""
+LC_CLOSING_HORIZON_S = 3.0
+"""Plus what a faster follower (or a slower new leader) closes in this long."""
+LC_STYLE_FACTOR = {"conservative": 1.5, "normal": 1.0, "aggressive": 0.7}
+"""Multiplies the lane-change gaps (an instruction never drops them below the minimum)."""
+HARD_BRAKE_MPS2 = 3.0
+"""A leader braking harder than this is treated as coming to a standstill."""
+STANDOFF_M = 10.0
+"""Waiting to pass a standing vehicle in its lane, the ego stops this far behind it (from
+much closer the swerve is out of a car's steering reach without reversing)."""
+CLOSED_LOOKAHEAD_M = 400.0
+"""A lane the user said is closed is left once the ego knows (it is on that lane of an
+edge with a neighbour lane): the instruction is the only way to know beyond sensing."""
+
+
+@dataclass(frozen=True)
+class Intent:
+    """What the rules take from the user's instruction (untrusted plain text).
+
+    The instruction can only choose among options the rules offer anyway: the driving
+    style (gaps, whether to overtake a slow leader, how early to change lanes) and lanes
+    to avoid. Requests to break rules (ignore a light, a speed figure) are noted and
+    ignored: signals, the speed limit and the configured pools are never changed."""
+
+    style: str = "normal"
+    """"conservative", "normal" or "aggressive"."""
+    closed_sides: frozenset[str] = frozenset()
+    """"right" / "left": the user says that lane (rightmost / leftmost) is closed ahead."""
+    refused: tuple[str, ...] = ()
+    """Parts of the instruction the rules will not follow (quoted in the reasoning)."""
+
+
+def _mentions(pattern: re.Pattern[str], text: str) -> bool:
+    """``pattern`` occurs in ``text`` without a negation just before it."""
+    for m in pattern.finditer(text):
+        if not _NEGATION.search(text[:m.start()]):
+            return True
+    return False
+
+
+def parse_instruction(text: Optional[str]) -> Intent:
+    """The user's instruction as an :class:`Intent` (keyword rules, an APPROXIMATION of
+    language understanding: no LLM here). Conservative wording wins over aggressive
+    wording when both occur (the safer reading)."""
+    if not text:
+        return Intent()
+    conservative = _mentions(CONSERVATIVE_WORDS, text)
+    aggressive = _mentions(AGGRESSIVE_WORDS, text)
+    style = "conservative" if conservative else "aggressive" if aggressive else "normal"
+    sides = {m.group("side").lower() for m in CLOSED_LANE.finditer(text)}
+    sides |= {m.group("side").lower() for m in CLOSED_LANE_REV.finditer(text)}
+    refused = tuple(m.group(0)[:60] for m in UNSAFE_REQUEST.finditer(text))
+    return Intent(style=style, closed_sides=frozenset(sides), refused=refused)
 
 
 def travel_time_s(dist_m: float, *, v0_mps: float, accel_mps2: float, vmax_mps: float) -> float:
@@ -103,6 +204,8 @@ class _Plan:
         }
     )
     notes: list[str] = field(default_factory=list)
+    ego_index: Optional[int] = None
+    """The ego candidate chosen by the lane rule (None: the route candidate)."""
 
     def attend(self, view: AgentView, why: str) -> None:
         self.attention.setdefault(view.id, why)
@@ -145,7 +248,8 @@ class RulesBackend:
         steer = request.steer_intervals_rad
         emergency = request.mode == "emergency"
         plan = _Plan(accel_index=_neutral(accel), steer_index=_neutral(steer))
-        careful = bool(request.instruction and CONSERVATIVE_WORDS.search(request.instruction))
+        intent = parse_instruction(request.instruction)
+        careful = intent.style == "conservative"
         safe_gap_s = cfg.safe_gap_s * (cfg.conservative_gap_factor if careful else 1.0)
         if careful:
             plan.weights["safety"] = "high"
@@ -159,8 +263,17 @@ class RulesBackend:
 
         ego = scene.obs.ego
         self._attend_defaults(scene, plan)
+        if intent.refused:
+            plan.notes.append(
+                "I do not follow the part(s) of the instruction that would break traffic "
+                "rules or the speed limit (" + "; ".join(f"'{r}'" for r in intent.refused)
+                + "); signals and limits still apply.")
         turn = self._left_turn_rule(scene, plan, accel, steer, safe_gap_s, previous_go,
                                     emergency, previous_stop)
+        if turn == "none" and not emergency:
+            # an emergency answer has no scenario encoding (the MPC gets the route
+            # candidate), so a lane change cannot be chosen there: only the speed rules run
+            self._lane_rule(scene, plan, accel, intent)
         if turn != "yield":
             self._path_rule(scene, plan, accel, emergency=emergency,
                             committed=turn == "commit")
@@ -173,16 +286,19 @@ class RulesBackend:
                 "weight_adjustment": dict(plan.weights),
             }
         attention = list(plan.attention)
+        ego_id = plan.ego_index if plan.ego_index is not None else scene.route_candidate_id
         encoding = {
-            "ego_trajectory": scene.route_candidate_id,
+            "ego_trajectory": ego_id,
             "attention": attention,
             "agent_trajectories": {
                 aid: scene.agent(aid).closest_heading_id for aid in attention  # type: ignore
             },
         }
-        ego_label = scene.ego_candidates[scene.route_candidate_id].label
+        ego_label = scene.ego_candidates[ego_id].label
         head = (
             f"I follow my route ({ego_label}) at {ego.v_mps:.1f} m/s."
+            if ego_id == scene.route_candidate_id else
+            f"I take '{ego_label}' (not the route candidate) at {ego.v_mps:.1f} m/s."
             if scene.ego_candidates else ""
         )
         if attention:
@@ -404,6 +520,267 @@ class RulesBackend:
         zone = cr.ego_s_m - 0.5 * ag.width_m - CLEAR_MARGIN_M
         return Conflict(view, cr.ego_s_m, t_agent, t_clear, zone)
 
+    def _lane_rule(
+        self, scene: Scene, plan: _Plan, accel: tuple[tuple[float, float], ...],
+        intent: Intent,
+    ) -> str:
+        """Rule 8: which lane of a multi-lane road to drive in (paper Fig. 5 / 7).
+
+        Applies where the ego is offered neighbour-lane candidates (a normal lane of a
+        multi-lane edge, no junction choice ahead within the lookahead). Reasons, in
+        order: leave a lane the user said is closed, or one blocked by a stopped vehicle
+        ahead; reach a lane that continues along the route before the edge ends (early
+        when conservative); overtake a slow leader through a faster neighbour lane
+        (never when conservative). A change needs a gap to the new leader and follower
+        (``LC_*``, scaled by the style); without one the ego keeps its lane and, when the
+        change is urgent, eases off so the gap behind a neighbour passes. Returns "keep",
+        "change" or "wait" (a change is wanted but the gap is not there); "none" when the
+        rule does not apply. Geometry: ego-frame offsets (straight-road APPROXIMATION)."""
+        obs = scene.obs
+        ego = obs.ego
+        here = scene.lanes.get(ego.lane_id or "")
+        if here is None or here.internal or not scene.ego_candidates:
+            return "none"
+        siblings = {ln.index: ln for ln in scene.lanes.values()
+                    if ln.edge_id == here.edge_id and not ln.internal}
+        if len(siblings) < 2:
+            return "none"
+        # offered candidates per lane they move to (the first lane of their chain)
+        by_lane: dict[str, int] = {}
+        for c in scene.ego_candidates:
+            if not c.lane_ids:
+                continue
+            first = c.lane_ids[0]
+            lane = scene.lanes.get(first)
+            if lane is not None and lane.edge_id == here.edge_id and first not in by_lane:
+                by_lane[first] = c.candidate_id
+        # the route candidate may jump several lanes: it counts for the lane it ends on
+        route_c = scene.ego_candidates[scene.route_candidate_id]
+        route_lane = next((lid for lid in route_c.lane_ids
+                           if lid in scene.lanes and scene.lanes[lid].edge_id == here.edge_id),
+                          None)
+        if here.id not in by_lane or len(set(by_lane) | {route_lane or here.id}) < 2:
+            return "none"  # only junction choices offered: the turn rules decide
+        cfg = self.config
+        left_hand = obs.map.left_hand_traffic
+        n = max(siblings) + 1
+        closed = set()
+        for side in intent.closed_sides:
+            outer = 0 if (side == "right") != left_hand else n - 1
+            if outer in siblings:
+                closed.add(siblings[outer].id)
+        # the lanes that continue along the route (and how far this edge still goes)
+        continuing = self._continuing_lanes(scene, here, siblings)
+        dist_end_m = max(0.0, here.length_m - ego.lane_pos_m)
+        ok_idx = sorted(ln.index for ln in continuing if ln.id not in closed) or \
+            sorted(ln.index for ln in continuing)
+        need = min((abs(i - here.index) for i in ok_idx), default=0)
+        toward = None
+        if need > 0:
+            nearest = min(ok_idx, key=lambda i: (abs(i - here.index), i))
+            toward = here.index + (1 if nearest > here.index else -1)
+
+        def lane_state(lane_id: str) -> tuple[Optional[AgentView], Optional[AgentView]]:
+            """(leader, follower) on ``lane_id``, by the ego-frame longitudinal offset."""
+            lead: Optional[AgentView] = None
+            follow: Optional[AgentView] = None
+            for v in scene.agents:
+                # along the lane (the ego itself may stand turned half-way into a swerve)
+                if v.agent.lane_id != lane_id or abs(v.kin.heading_rel_rad) > _ALONG_RAD:
+                    continue
+                lon = v.kin.longitudinal_m
+                if lon >= 0.0 and (lead is None or lon < lead.kin.longitudinal_m):
+                    lead = v
+                if lon < 0.0 and (follow is None or lon > follow.kin.longitudinal_m):
+                    follow = v
+            return lead, follow
+
+        limit = here.speed_limit_mps
+        lead_here, _ = lane_state(here.id)
+        blocked = lead_here is not None and lead_here.agent.v_mps < cfg.moving_speed_mps \
+            and lead_here.kin.longitudinal_m <= obs.agents.sensing_range_m \
+            and not _queued_at_junction(scene, lead_here)
+        slow = lead_here is not None and lead_here.kin.longitudinal_m <= SLOW_LEADER_RANGE_M \
+            and lead_here.agent.v_mps < SLOW_LEADER_FRACTION * limit
+        merge_m = need * LANE_MERGE_PER_CHANGE_M + LANE_MERGE_SLACK_M
+        # towards the lane the route needs: at once (normal, conservative: measured on
+        # lane seeds 100-124, merging late into the slower traffic cost more in gaps and
+        # harsh braking than the fast lane saved in time), late only when aggressive
+        urgent_merge = need > 0 and (intent.style != "aggressive"
+                                     or dist_end_m < merge_m * LANE_MERGE_AGGRESSIVE)
+        want: Optional[int] = None
+        why = ""
+        urgent = False
+        if here.id in closed and dist_end_m <= CLOSED_LOOKAHEAD_M:
+            open_nb = [i for i in (here.index - 1, here.index + 1)
+                       if i in siblings and siblings[i].id not in closed]
+            if open_nb:
+                want = min(open_nb, key=lambda i: (abs(i - (toward or i)), i))
+                why, urgent = "the user says my lane is closed ahead", True
+        if want is None and blocked and lead_here is not None:
+            open_nb = [i for i in (here.index - 1, here.index + 1)
+                       if i in siblings and siblings[i].id not in closed]
+            if open_nb:
+                # prefer the side towards the route, else the overtaking side
+                over = here.index - 1 if left_hand else here.index + 1
+                want = min(open_nb, key=lambda i: (i != toward, i != over, i))
+                why = f"{lead_here.id} stands in my lane {lead_here.kin.gap_m:.0f} m ahead"
+                urgent = True
+        if want is None and urgent_merge and toward is not None:
+            step_c = by_lane.get(siblings[toward].id) if toward in siblings else None
+            if step_c is None and route_lane is not None and route_lane != here.id:
+                step_c = scene.route_candidate_id
+            if step_c is not None and (intent.style != "aggressive"
+                                       or dist_end_m < LANE_MERGE_FORCE_M):
+                # the route candidate, as before rule 8 existed: the MPC merges along it
+                # and its safety term keeps the gaps; SUMO drivers make room. A strict gap
+                # test here found no gap in dense slow traffic (lane seed 119 missed its
+                # exit), and a missed exit costs a 200 s timeout.
+                for lid in scene.ego_candidates[step_c].lane_ids:
+                    ln = scene.lanes.get(lid)
+                    if ln is not None and ln.edge_id == here.edge_id:
+                        for v in scene.agents:
+                            if v.agent.lane_id == lid and abs(v.kin.longitudinal_m) < 40.0:
+                                plan.attend(v, "in the lane I merge into")
+                plan.ego_index = step_c
+                plan.notes.append(
+                    f"My route needs {need} lane change(s) within {dist_end_m:.0f} m; I "
+                    "move towards that lane now and keep safe gaps.")
+                return "change"
+            want = toward
+            why = f"my route needs {need} lane change(s) within {dist_end_m:.0f} m"
+            urgent = dist_end_m < merge_m
+        if want is None and slow and intent.style != "conservative" and lead_here is not None:
+            gain = SLOW_LEADER_GAIN_MPS * (0.5 if intent.style == "aggressive" else 1.0)
+            best: Optional[tuple[float, int]] = None
+            for i in (here.index - 1, here.index + 1):
+                nb = siblings.get(i)
+                if nb is None or nb.id in closed:
+                    continue
+                # moving away from the route lanes only with road enough to come back
+                need_after = min((abs(j - i) for j in ok_idx), default=0)
+                if need_after > need and (
+                        intent.style != "aggressive"
+                        or dist_end_m < (need_after * LANE_MERGE_PER_CHANGE_M
+                                         + LANE_MERGE_SLACK_M) * 2.0):
+                    continue  # away from the lanes the route needs: aggressive only
+                lead_nb, _ = lane_state(nb.id)
+                v_nb = nb.speed_limit_mps if lead_nb is None or \
+                    lead_nb.kin.longitudinal_m > SLOW_LEADER_RANGE_M else lead_nb.agent.v_mps
+                if v_nb - lead_here.agent.v_mps >= gain and (best is None or v_nb > best[0]):
+                    best = (v_nb, i)
+            if best is not None:
+                want = best[1]
+                why = (f"{lead_here.id} ahead drives {lead_here.agent.v_mps:.1f} m/s, the "
+                       f"{'left' if (best[1] > here.index) != left_hand else 'right'} lane "
+                       "is faster, so I overtake")
+        keep_id = by_lane[here.id]
+        if lead_here is not None and lead_here.kin.longitudinal_m <= SLOW_LEADER_RANGE_M:
+            plan.attend(lead_here, "leader in my lane")
+        if want is None:
+            plan.ego_index = keep_id
+            return "keep"
+        target = siblings[want]
+        side = "left" if (want > here.index) != left_hand else "right"
+        cand = by_lane.get(target.id)
+        if cand is None and route_lane is not None:
+            # only the route candidate goes that way (it may cross the lane to its end)
+            rl = scene.lanes[route_lane]
+            if (rl.index - here.index) * (want - here.index) > 0:
+                cand = scene.route_candidate_id
+        if cand is None:
+            plan.ego_index = keep_id
+            return "none"
+        crossed = [siblings[i] for i in range(min(here.index, want), max(here.index, want) + 1)
+                   if i != here.index and i in siblings]
+        if cand == scene.route_candidate_id and route_lane is not None:
+            ri = scene.lanes[route_lane].index
+            crossed = [siblings[i] for i in range(min(here.index, ri), max(here.index, ri) + 1)
+                       if i != here.index and i in siblings]
+        style_f = LC_STYLE_FACTOR[intent.style]
+        blocker: Optional[tuple[AgentView, str]] = None
+        for ln in crossed:
+            lead_nb, follow_nb = lane_state(ln.id)
+            for v, where in ((lead_nb, "ahead"), (follow_nb, "behind")):
+                if v is None:
+                    continue
+                plan.attend(v, f"in the {side} lane {where}")
+                gap = v.kin.gap_m
+                if where == "ahead":
+                    closing = max(0.0, ego.v_mps - v.agent.v_mps)
+                    need_gap = LC_MIN_GAP_M + style_f * (LC_HEADWAY_S * ego.v_mps
+                                                         + LC_CLOSING_HORIZON_S * closing)
+                else:
+                    closing = max(0.0, v.agent.v_mps - ego.v_mps)
+                    need_gap = LC_MIN_GAP_M + style_f * (LC_HEADWAY_S * v.agent.v_mps
+                                                         + LC_CLOSING_HORIZON_S * closing)
+                if v.kin.longitudinal_m > -0.5 * ego.length_m and \
+                        v.kin.longitudinal_m < 0.5 * ego.length_m + v.agent.length_m:
+                    gap = 0.0  # beside me
+                if gap < need_gap and (blocker is None or gap < blocker[0].kin.gap_m):
+                    blocker = (v, where)
+        if blocker is None:
+            plan.ego_index = cand
+            plan.notes.append(f"{_sentence(why)}; the gap in the {side} lane is free, so I "
+                              f"change to the {side} lane.")
+            return "change"
+        plan.ego_index = keep_id
+        v, where = blocker
+        plan.notes.append(f"{_sentence(why)}, but {v.id} {where} in the {side} lane leaves "
+                          "no safe gap yet, so I keep my lane for now.")
+        if blocked and lead_here is not None and not plan.speed_set:
+            # wait far enough behind the standing vehicle to steer round it later (a car
+            # cannot reverse, and from a few metres the swerve is out of its steering reach)
+            d_stop = lead_here.kin.gap_m - STANDOFF_M
+            if ego.v_mps < cfg.moving_speed_mps and d_stop > 8.0:
+                plan.accel_index = _mildest_accel(accel)  # creep up to the stand-off point
+            else:
+                # a braking bias (a neutral one lets the MPC speed up to just behind it)
+                plan.accel_index = _stop_index(accel, ego.v_mps, max(d_stop, 0.0), None,
+                                               cfg.moving_speed_mps)
+                plan.notes.append(f"I stop about {STANDOFF_M:.0f} m behind {lead_here.id} "
+                                  "so I can still steer round it.")
+            plan.speed_set = True
+            plan.weights["action"] = "high"
+            return "wait"
+        if urgent and where == "ahead" and v.agent.v_mps < ego.v_mps + 1.0 \
+                and not plan.speed_set:
+            # let the car beside / ahead in the target lane draw ahead, then merge behind it
+            plan.accel_index = _brake_index(accel, 1.0, False)
+            plan.speed_set = True
+        elif urgent and where == "behind" and not plan.speed_set and ego.v_mps < 0.8 * limit:
+            # a faster car behind in the target lane: get ahead of it if I can
+            plan.accel_index = _mildest_accel(accel)
+            plan.speed_set = True
+        return "wait"
+
+    def _continuing_lanes(self, scene: Scene, here: Lane, siblings: dict[int, Lane]
+                          ) -> list[Lane]:
+        """Lanes of the ego's edge from which its route goes on (any lane when the route
+        ends on this edge or its next edge is not in the map)."""
+        route = scene.obs.map.ego_route
+        nxt_edge: Optional[str] = None
+        seen_here = False
+        for lid in route:
+            lane = scene.lanes.get(lid)
+            if lane is None or lane.internal:
+                continue
+            if lane.edge_id == here.edge_id:
+                seen_here = True
+            elif seen_here:
+                nxt_edge = lane.edge_id
+                break
+        if nxt_edge is None:
+            return list(siblings.values())
+        out = []
+        for ln in siblings.values():
+            for lk in ln.successors:
+                to = scene.lanes.get(lk.to_lane)
+                if to is not None and to.edge_id == nxt_edge:
+                    out.append(ln)
+                    break
+        return out or list(siblings.values())
+
     def _path_rule(
         self, scene: Scene, plan: _Plan, accel: tuple[tuple[float, float], ...], *,
         emergency: bool, committed: bool
@@ -413,24 +790,51 @@ class RulesBackend:
         path (an oncoming car in its own lane) is the turn rule's business."""
         cfg = self.config
         ego = scene.obs.ego
-        path = _route_path(scene)
+        path = _route_path(scene, plan.ego_index)
+        changing = plan.ego_index is not None and \
+            scene.ego_candidates[plan.ego_index].label.startswith("change to the")
         threats = []
+        standoff: dict[str, float] = {}
         for v in scene.agents:
             k = v.kin
-            if k.longitudinal_m <= 0.0 or k.ttc_s is None:
+            if k.longitudinal_m <= 0.0:
+                continue
+            # a standing vehicle (a breakdown, not a queue) in my own lane: stop far enough
+            # behind it to steer round it later (only the closing speed matters for TTC)
+            # a standing vehicle (a breakdown, not a queue) in my own lane, or one braking
+            # hard towards a standstill: stop far enough behind where it will stand to
+            # steer round it later (the constant-velocity TTC sees a braking car late)
+            stopping = v.agent.v_mps < cfg.moving_speed_mps or \
+                v.agent.a_mps2 < -HARD_BRAKE_MPS2
+            stand = not changing and stopping and abs(k.heading_rel_rad) < _ALONG_RAD and \
+                not _queued_at_junction(scene, v) and not _other_lane(scene, v)
+            if k.ttc_s is None and not stand:
                 continue
             if path is not None:
                 corridor = 0.5 * (ego.width_m + v.agent.width_m) + cfg.path_corridor_m
                 if _distance_to_path(path, v.agent.x_m, v.agent.y_m) > corridor:
                     continue
             limit = cfg.path_ttc_s if not committed else cfg.commit_ttc_s
-            if k.ttc_s < limit:
+            stop_gap = k.gap_m - STANDOFF_M
+            if v.agent.v_mps >= cfg.moving_speed_mps:
+                stop_gap += v.agent.v_mps ** 2 / (2.0 * max(-v.agent.a_mps2, HARD_BRAKE_MPS2))
+            if k.ttc_s is not None and k.ttc_s < limit:
                 threats.append(v)
+            elif stand and ego.v_mps >= cfg.moving_speed_mps and \
+                    stop_gap < ego.v_mps ** 2 / (2.0 * 2.0) + 1.5 * ego.v_mps:
+                threats.append(v)
+                standoff[v.id] = stop_gap
         if not threats:
             return
-        worst = min(threats, key=lambda v: (v.kin.ttc_s, v.id))
-        plan.attend(worst, f"closing in, {worst.kin.ttc_s:.1f} s to collision")
-        need = worst.kin.closing_speed_mps**2 / (2.0 * max(worst.kin.gap_m - 2.0, 0.5))
+        worst = min(threats, key=lambda v: (v.kin.ttc_s if v.kin.ttc_s is not None
+                                            else math.inf, v.id))
+        ttc_txt = f"{worst.kin.ttc_s:.1f} s to collision" if worst.kin.ttc_s is not None \
+            else "standing"
+        plan.attend(worst, f"closing in, {ttc_txt}")
+        if worst.id in standoff:
+            need = ego.v_mps ** 2 / (2.0 * max(standoff[worst.id], 0.5))
+        else:
+            need = worst.kin.closing_speed_mps**2 / (2.0 * max(worst.kin.gap_m - 2.0, 0.5))
         if emergency and worst.kin.ttc_s is not None and worst.kin.ttc_s < cfg.commit_ttc_s:
             plan.accel_index = _strongest_brake(accel)
             plan.weights.update(tracking="low", action="high")
@@ -439,16 +843,54 @@ class RulesBackend:
                                             False)
         plan.speed_set = True
         plan.weights["safety"] = "high"
-        plan.notes.append(
-            f"{worst.id} is {worst.kin.gap_m:.0f} m {worst.kin.relation} in my path and I "
-            f"close in at {worst.kin.closing_speed_mps:.1f} m/s, so I brake to keep a safe "
-            "distance."
-        )
+        if worst.id in standoff:
+            what = "stands" if worst.agent.v_mps < cfg.moving_speed_mps else "brakes hard"
+            plan.notes.append(
+                f"{worst.id} {what} {worst.kin.gap_m:.0f} m ahead in my lane, so I brake to "
+                f"stop about {STANDOFF_M:.0f} m behind where it stands (room to steer round it)."
+            )
+        else:
+            plan.notes.append(
+                f"{worst.id} is {worst.kin.gap_m:.0f} m {worst.kin.relation} in my path and I "
+                f"close in at {worst.kin.closing_speed_mps:.1f} m/s, so I brake to keep a safe "
+                "distance."
+            )
 
     def _go(self, scene: Scene, plan: _Plan, accel: tuple[tuple[float, float], ...]) -> None:
         ego = scene.obs.ego
         lane = scene.lanes.get(ego.lane_id or "")
         limit = lane.speed_limit_mps if lane is not None else DEFAULT_VEHICLE.max_speed_mps
+        changing = plan.ego_index is not None and \
+            scene.ego_candidates[plan.ego_index].label.startswith("change to the")
+        close = None if changing else self._close_leader_in_path(scene, plan)
+        if close is not None:
+            cfg = self.config
+            standing = close.agent.v_mps < cfg.moving_speed_mps
+            d_m = close.kin.gap_m - STANDOFF_M
+            moving = ego.v_mps >= cfg.moving_speed_mps
+            if standing and (d_m < 3.0 or (not moving and d_m < 8.0)):
+                # close behind a standing vehicle: stay (an accelerating bias would push
+                # the MPC into it, and from nearer the ego could not steer round it)
+                plan.accel_index = _brake_index(accel, 0.0, True)
+                plan.weights["action"] = "high"
+                plan.notes.append(f"{close.id} stands {close.kin.gap_m:.0f} m ahead in my "
+                                  "path, so I stay where I am.")
+            elif standing and not moving:
+                plan.accel_index = _mildest_accel(accel)  # creep nearer, slowly
+                plan.notes.append(f"I creep up behind {close.id}, standing ahead.")
+            elif standing:
+                # a neutral bias lets the MPC speed up to just behind it: brake to stop
+                # about STANDOFF_M short of it instead
+                plan.accel_index = _stop_index(accel, ego.v_mps, d_m, None,
+                                               cfg.moving_speed_mps)
+                plan.weights["action"] = "high"
+                plan.notes.append(f"{close.id} stands {close.kin.gap_m:.0f} m ahead in my "
+                                  f"path; I stop about {STANDOFF_M:.0f} m short of it.")
+            else:
+                plan.accel_index = _neutral(accel)
+                if not plan.notes:
+                    plan.notes.append(f"I follow {close.id} ahead in my path.")
+            return
         if ego.v_mps < 0.8 * limit:
             plan.accel_index = _mildest_accel(accel)
             if not plan.notes:
@@ -458,8 +900,63 @@ class RulesBackend:
         elif not plan.notes:
             plan.notes.append("The way is clear; I keep my speed.")
 
+    def _close_leader_in_path(self, scene: Scene, plan: _Plan) -> Optional[AgentView]:
+        """The nearest agent ahead within the corridor of the chosen path, closer than
+        what the ego needs to follow it comfortably (two seconds, at least 15 m) and not
+        faster than the ego: the MPC follows it on its own; speeding up would fight that."""
+        ego = scene.obs.ego
+        path = _route_path(scene, plan.ego_index)
+        best: Optional[AgentView] = None
+        for v in scene.agents:
+            k = v.kin
+            if k.longitudinal_m <= 0.0 or k.motion == "oncoming":
+                continue
+            standing = v.agent.v_mps < self.config.moving_speed_mps and \
+                not _queued_at_junction(scene, v)
+            reach_m = max(15.0, 2.0 * ego.v_mps, STANDOFF_M + 15.0 if standing else 0.0)
+            if k.gap_m > reach_m or v.agent.v_mps > ego.v_mps + 1.0:
+                continue
+            if _other_lane(scene, v):
+                continue  # e.g. a standing car the ego is steering round in the next lane
+            if path is not None:
+                corridor = 0.5 * (ego.width_m + v.agent.width_m) + self.config.path_corridor_m
+                if _distance_to_path(path, v.agent.x_m, v.agent.y_m) > corridor:
+                    continue
+            if best is None or k.gap_m < best.kin.gap_m:
+                best = v
+        return best
+
 
 # -- helpers --------------------------------------------------------------------------------
+_QUEUE_ZONE_M = 40.0
+_ALONG_RAD = 1.2
+"""Agents heading within this of the ego count as driving along its road (wider than the
+30 deg of "same direction": an ego stopped turned into a swerve still sees them)."""
+
+
+def _other_lane(scene: Scene, view: AgentView) -> bool:
+    """The agent is on another lane of the ego's edge (both lanes known)."""
+    ego_lane = scene.lanes.get(scene.obs.ego.lane_id or "")
+    lane = scene.lanes.get(view.agent.lane_id or "")
+    return ego_lane is not None and lane is not None and lane.id != ego_lane.id \
+        and lane.edge_id == ego_lane.edge_id
+
+
+def _sentence(text: str) -> str:
+    return text[:1].upper() + text[1:]
+
+
+def _queued_at_junction(scene: Scene, view: AgentView) -> bool:
+    """A stopped vehicle near the end of a lane that meets a light or a junction choice
+    is (probably) waiting there, not broken down: the ego queues behind it instead of
+    changing lanes around it."""
+    lane = scene.lanes.get(view.agent.lane_id or "")
+    if lane is None or lane.length_m - view.agent.lane_pos_m > _QUEUE_ZONE_M:
+        return False
+    signalized = any(sl.lane_id == lane.id and sl.signalized for sl in scene.obs.map.stop_lines)
+    return signalized or len({lk.direction for lk in lane.successors}) >= 2
+
+
 def _guidance(plan: _Plan) -> dict[str, int]:
     return {"accel_interval": plan.accel_index, "steer_interval": plan.steer_index}
 
@@ -491,11 +988,13 @@ def _accel_index(intervals: tuple[tuple[float, float], ...], want_mps2: float) -
     return positive[-1]
 
 
-def _route_path(scene: Scene) -> Optional[np.ndarray]:
-    """(n, 2) points of the ego's route candidate (None without candidates)."""
+def _route_path(scene: Scene, ego_index: Optional[int] = None) -> Optional[np.ndarray]:
+    """(n, 2) points of the chosen ego candidate (default: the route candidate; None
+    without candidates)."""
     if not scene.ego_candidates:
         return None
-    return scene.ego_candidates[scene.route_candidate_id].sample(60)
+    i = scene.route_candidate_id if ego_index is None else ego_index
+    return scene.ego_candidates[i].sample(60)
 
 
 def _distance_to_path(path: np.ndarray, x_m: float, y_m: float) -> float:
