@@ -64,12 +64,15 @@ def make_planner(method: str, instruction: Optional[str] = None) -> Any:
     if method == "mpc":
         return None
     from lmpc_llm_planner.backends import make_backend
-    from lmpc_llm_planner.config import load_planner_config
+    from lmpc_llm_planner.config import LOCAL_CONFIG_PATH, load_planner_config
     from lmpc_llm_planner.planner import PlannerCore
     from lmpc_mpc.config import load_mpc_config
 
     backend_name = method.removeprefix("lmpc-")
-    config = load_planner_config(overrides={"backend": backend_name})
+    # The small local model needs its own config (a deadline it can meet on a small CPU,
+    # a simulated latency: config/planner_local.yaml says why), or every call times out.
+    config = load_planner_config(LOCAL_CONFIG_PATH if backend_name == "local" else None,
+                                 overrides={"backend": backend_name})
     core = PlannerCore(config, make_backend(config), load_mpc_config())
     if instruction:
         core.on_instruction(instruction)

@@ -258,6 +258,9 @@ def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, 
                              "run_dir": str(run_dir)}
         if args.planner_config:
             params["planner"]["config_file"] = str(args.planner_config.resolve())
+        elif args.planner == "local":
+            from lmpc_llm_planner.config import LOCAL_CONFIG_PATH  # deadline the model can meet
+            params["planner"]["config_file"] = str(LOCAL_CONFIG_PATH)
     elif args.planner == "mock":
         params["mock_llm"] = {"use_sim_time": True, "script_file": str(args.mock_script.resolve())}
     return params

@@ -164,10 +164,12 @@ def test_nodes_started_without_inputs_wait_and_command_nothing(
         g.start("mpc", _sim(clock_mode="sync"))
         g.start("planner", _sim(backend="rules", run_dir=str(run_dir)))
         g.wait_for_log("planner", "ready: waiting for /lmpc/map and /lmpc/ego_state", 60)
-        g.wait_for_log("mpc", "mpc_controller up", 60)
+        g.wait_for_log("mpc", "waiting for /lmpc/map and /lmpc/ego_state", 60)
         b.wait_for_log("bridge", "waiting for subscribers of /lmpc/ego_state", 60)
         probe.wait_until("the MPC's diagnostics",
                          lambda: probe.diag("/mpc_controller").get("mode") == "idle", 10)
+        probe.wait_until("the MPC saying what it waits for", lambda: probe.diag_messages.get(
+            "/mpc_controller", "") == "waiting for /lmpc/ego_state", 10)
         # an ego state but no map: both say they wait for the map and command nothing
         ego = EgoState(stamp_s=0.0, seq=3, x_m=0.0, y_m=0.0, yaw_rad=0.0, v_mps=5.0,
                        a_mps2=0.0, steer_rad=0.0, dist_to_target_m=100.0)

@@ -90,7 +90,9 @@ class MpcNode(LmpcNode):
         self.create_timer(TICK_S, self._tick, clock=steady)
         self.create_timer(1.0, self._diagnostics, clock=steady)
         self.get_logger().info(
-            f"mpc_controller up: solver {self.config.solver}, horizon {self.config.horizon}")
+            f"mpc_controller up: solver {self.config.solver}, horizon {self.config.horizon}; "
+            f"waiting for {self.topic(topics.MAP)} and {self.topic(topics.EGO_STATE)} "
+            "(no control is published before both arrive)")
 
     # -- inputs --------------------------------------------------------------------------
     def _on_map(self, msg: MapSnapshot) -> None:
@@ -255,8 +257,13 @@ class MpcNode(LmpcNode):
         level = 0 if st.mode in ("decision", "baseline", "idle") else 1
         if self._frozen:
             level = 1
-        self.publish_diagnostics(level, "simulation not advancing" if self._frozen
-                                 else f"mode {st.mode}",
+        if self._frozen:
+            message = "simulation not advancing"
+        elif not self._seen_ego:
+            message = f"waiting for {self.topic(topics.EGO_STATE)}"
+        else:
+            message = f"mode {st.mode}"
+        self.publish_diagnostics(level, message,
                                  {"mode": st.mode, "steps": st.steps,
                                   "solver_failures": st.solver_failures,
                                   "fallbacks": st.fallbacks, "shifted": st.shifted,
