@@ -130,6 +130,7 @@ class MpcController:
         self._counts = {"steps": 0, "solver_failures": 0, "fallbacks": 0, "shifted": 0,
                         "brakes": 0, "stale_inputs": 0}
         self._mode = "idle"
+        self._solved_decision_id: Optional[str] = None
         self._ego_v_mps = 0.0
         self._now_s = 0.0
         self._committed: dict[str, float] = {}
@@ -186,6 +187,7 @@ class MpcController:
         self._committed.clear()
         self._agent_curves.clear()
         self._route_s = None
+        self._solved_decision_id = None
         self.solver.reset()
 
     # -- control -------------------------------------------------------------------------
@@ -212,9 +214,12 @@ class MpcController:
         except (ReferencePathError, ValueError) as exc:
             self._counts["fallbacks"] += 1
             return self._brake(obs, f"no reference: {exc}"[:200], decision_id=None)
+        dec_id = decision.decision_id if decision is not None else None
+        if dec_id != self._solved_decision_id:
+            self.solver.reconverge()  # new weights / bias / attention: a jump, not a drift
+            self._solved_decision_id = dec_id
         result = self.solver.solve(problem)
         mode = "decision" if decision is not None else "baseline"
-        dec_id = decision.decision_id if decision is not None else None
         if result.success:
             u = result.u0
             if all(math.isfinite(v) for v in u):

@@ -217,6 +217,7 @@ class MpcSolver:
         self._rti: dict[int, RtiQp] = {}
         self._warm: Optional[np.ndarray] = None
         self._warm_slots: Optional[int] = None
+        self._reconverge_next = False
         self.enforce_time_budget = config.enforce_time_budget
         """Realtime: a solve over ``time_budget_s`` (wall) fails. Off (sync / benchmark):
         success is decided by the iteration cap alone, an overrun is only counted."""
@@ -383,6 +384,13 @@ class MpcSolver:
         """Forget the warm start (e.g. after a teleport or a new episode)."""
         self._warm = None
         self._warm_slots = None
+
+    def reconverge(self) -> None:
+        """The problem changed in a jump (a new decision: other weights, bias, attended
+        agents): the next RTI solve iterates to convergence (``rti_cold_iterations``)
+        from the shifted guess instead of taking one step. One Gauss-Newton step lags a
+        jump by several control steps (late braking when a decision says brake)."""
+        self._reconverge_next = True
 
     # -- parameters ----------------------------------------------------------------------
     def _obstacle_rows(self, prob: MpcProblem, ref: np.ndarray, yaw_ref: np.ndarray
@@ -644,7 +652,8 @@ class MpcSolver:
         start ``rti_cold_iterations``) from the shifted previous solution."""
         n = self.n
         qp = self.rti(n_slots)
-        cold = self._warm is None
+        cold = self._warm is None or self._reconverge_next
+        self._reconverge_next = False
         guess = self._initial_guess(x0, n_slots)
         stage = np.empty((n + 1, NX + NU))
         stage.ravel()[: len(guess)] = guess

@@ -210,3 +210,30 @@ def test_facing_away_from_the_path_gets_a_lead_in() -> None:
     assert out[-1][1] == pytest.approx(49.0)
     same = _lead_in(path, 0.0, 0.0, math.pi / 2)  # already along it: unchanged
     assert same is path
+
+
+class _CountingSolver(MpcSolver):
+    """The real solver, counting the controller's "the problem jumped" signals."""
+
+    reconverged_at: list[int]
+
+    def reconverge(self) -> None:
+        self.reconverged_at.append(self.solves)
+        super().reconverge()
+
+    def solve(self, problem):  # type: ignore[no-untyped-def]
+        self.solves += 1
+        return super().solve(problem)
+
+
+def test_a_decision_taking_effect_or_expiring_makes_the_solver_reconverge() -> None:
+    counting = _CountingSolver(CFG)
+    counting.reconverged_at, counting.solves = [], 0
+    ctrl = MpcController(CFG, solver=counting)
+    ctrl.on_decision(_decision((10.0, -4.8), stamp_s=0.0, latency_s=0.5, ttl_s=2.0))
+    log = _run(ctrl, S.straight_road(), (10.0, -4.8, 0.0, 10.0), 30)
+    modes = [c.mode for _, _, c in log]
+    switches = [k for k in range(len(modes)) if k == 0 or modes[k] != modes[k - 1]]
+    # first solve (baseline), the decision at 0.5 s, its expiry at 2.0 s: nothing else
+    assert switches == [0, 5, 20]
+    assert counting.reconverged_at == switches[1:]  # the first solve is a cold start anyway
