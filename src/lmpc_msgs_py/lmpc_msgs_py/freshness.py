@@ -27,15 +27,12 @@ RESYNC_AFTER = 5
 class SequenceGate:
     """Accepts a message only if its ``seq`` is newer than every one seen before.
 
-    Two cases look like "backwards" but are not a fault of the stream: a publisher
-    that restarted (it begins again at 0) and a single forged or corrupted message
-    with a huge ``seq`` that would otherwise block the real stream for good. Both
-    show as a run of refusals; after :data:`RESYNC_AFTER` consecutive ones the gate
-    re-synchronises on the stream that keeps arriving (a restart costs 5 messages,
-    0.5 s at 10 Hz; a lone bad ``seq`` cannot silence a topic). One exception: the
-    first message (``seq`` 0) may come again while the stream has not moved on, since
-    the bridge re-offers step 0 while discovery settles; once past 0, an injected or
-    replayed 0 is refused like any other backwards ``seq``.
+    A publisher that restarts begins again at 0: a ``seq`` of 0 always passes and
+    resets the gate (a restarted bridge is followed at once; a forged or replayed 0
+    carries an old stamp, which the staleness check then refuses). A single forged or
+    corrupted message with a huge ``seq`` would otherwise block the real stream for
+    good: after :data:`RESYNC_AFTER` consecutive refusals the gate re-synchronises on
+    the stream that keeps arriving (a lone bad ``seq`` costs 4 messages).
     """
 
     topic: str
@@ -47,8 +44,7 @@ class SequenceGate:
     def check(self, seq: int) -> None:
         """Raise :class:`StaleMessage` for a duplicate or backwards ``seq``."""
         last = self.last_seq
-        reoffer = seq == 0 and last == 0
-        if last is not None and seq <= last and not reoffer:
+        if last is not None and seq <= last and seq != 0:
             self._run += 1
             if self._run < RESYNC_AFTER:
                 self.refused += 1
