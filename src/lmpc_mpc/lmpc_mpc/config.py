@@ -13,10 +13,10 @@ from typing import Generic, Literal, TypeVar
 
 import os
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from lmpc_msgs_py.messages import WeightLevels
+from lmpc_msgs_py.yamlfile import field_path, first_field_error, read_mapping
 
 DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent / "config" / "mpc.yaml"
 SOLVER_ENV = "LMPC_MPC_SOLVER"
@@ -266,28 +266,14 @@ def load_mpc_config(path: str | Path | None = None) -> MpcConfig:
     Raises :class:`MpcConfigError` naming the file, the field and the reason.
     """
     file = Path(path) if path is not None and str(path) != "" else DEFAULT_CONFIG_PATH
-    try:
-        text = file.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise MpcConfigError(f"cannot read MPC config {file}: {exc.strerror or exc}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise MpcConfigError(f"MPC config {file} is not valid YAML: {exc}") from None
-    if not isinstance(data, dict):
-        raise MpcConfigError(f"MPC config {file} must be a mapping of fields, got {type(data)}")
+    data = read_mapping(file, what="MPC config", error=MpcConfigError)
     override = os.environ.get(SOLVER_ENV, "").strip()
     if override:
         data = {**data, "solver": override}
     try:
         return MpcConfig.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors(include_url=False)[0]
-        loc = ".".join(str(p) for p in err["loc"]) or "<file>"
-        more = exc.error_count() - 1
-        extra = f" (+{more} more)" if more else ""
-        if override and loc == "solver":
-            extra += f" (set by the environment variable {SOLVER_ENV})"
-        raise MpcConfigError(
-            f"MPC config {file}: field '{loc}': {err['msg']}{extra}"
-        ) from None
+        text = first_field_error("MPC config", file, exc)
+        if override and field_path(exc.errors(include_url=False)[0]) == "solver":
+            text += f" (set by the environment variable {SOLVER_ENV})"
+        raise MpcConfigError(text) from None

@@ -28,6 +28,7 @@ import casadi as ca
 import numpy as np
 
 from lmpc_msgs_py.vehicle import VehicleParams
+from lmpc_mpc.model import bicycle_function, midpoint_step
 
 NX = 8
 NU = 2
@@ -63,16 +64,6 @@ class RtiStep:
     qp_iterations: int
     """QP solver iterations summed over the SQP steps taken."""
     sqp_steps: int
-
-
-def _bicycle(vehicle: VehicleParams) -> ca.Function:
-    s = ca.SX.sym("s", 4)
-    u = ca.SX.sym("u", 2)
-    ratio = vehicle.lr_m / vehicle.wheelbase_m
-    beta = ca.atan(ratio * ca.tan(u[1]))
-    rhs = ca.vertcat(s[3] * ca.cos(s[2] + beta), s[3] * ca.sin(s[2] + beta),
-                     s[3] / vehicle.lr_m * ca.sin(beta), u[0])
-    return ca.Function("f", [s, u], [rhs])
 
 
 class RtiQp:
@@ -117,7 +108,7 @@ class RtiQp:
     # -- building ------------------------------------------------------------------------
     def _build(self, dt: float, veh: VehicleParams, qp_solver: str) -> None:
         n, m = self.n, self.n_slots
-        f = _bicycle(veh)
+        f = bicycle_function(veh)
         n_stage_p = NREF + NOBS * m
         p_x0 = ca.SX.sym("x0", NX)
         p_w = ca.SX.sym("w", N_W)
@@ -165,7 +156,7 @@ class RtiQp:
             w_vars.append(u)
             lbx += u_lb
             ubx += u_ub
-            nxt = ca.vertcat(_midpoint(f, x[:4], u[:NU], dt), u[:NU], x[4], x[5])
+            nxt = ca.vertcat(midpoint_step(f, x[:4], u[:NU], dt), u[:NU], x[4], x[5])
             # gap rows first (F(x_k, u_k) - x_{k+1}: the "A B -I" layout of the interface)
             g.append(nxt - xs[k + 1])
             lbg += [0.0] * NX
@@ -251,10 +242,3 @@ class RtiQp:
                     and float(np.max(np.abs(du[:, 1]))) <= steer_tol_rad):
                 break
         return RtiStep(True, "RTI_Step_Succeeded", z, qp_iters, taken)
-
-
-def _midpoint(f: ca.Function, s: ca.SX, u: ca.SX, dt_s: float) -> ca.SX:
-    # the NLP's internal model (lmpc_mpc.solver.midpoint_step), repeated here so this
-    # module does not import the solver module that imports it
-    k1 = f(s, u)
-    return s + dt_s * f(s + 0.5 * dt_s * k1, u)

@@ -47,6 +47,7 @@ import numpy as np
 
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
 from lmpc_mpc.config import MpcConfig, ResolvedWeights
+from lmpc_mpc.model import bicycle_function, midpoint_step  # noqa: F401 (re-export)
 from lmpc_mpc.rti import RtiQp
 
 NX = 8
@@ -137,27 +138,6 @@ class MpcResult:
     """Process CPU time of the solve (a loaded machine inflates it less than wall)."""
 
 
-def _bicycle(vehicle: VehicleParams) -> ca.Function:
-    s = ca.SX.sym("s", 4)
-    u = ca.SX.sym("u", 2)
-    ratio = vehicle.lr_m / vehicle.wheelbase_m
-    beta = ca.atan(ratio * ca.tan(u[1]))
-    rhs = ca.vertcat(s[3] * ca.cos(s[2] + beta), s[3] * ca.sin(s[2] + beta),
-                     s[3] / vehicle.lr_m * ca.sin(beta), u[0])
-    return ca.Function("f", [s, u], [rhs])
-
-
-def midpoint_step(f: ca.Function, s: ca.SX, u: ca.SX, dt_s: float) -> ca.SX:
-    """One explicit midpoint (RK2) step of ``s' = f(s, u)``: the MPC's internal model.
-
-    An approximation of the plant (the bridge integrates RK4 in two substeps): over a
-    3 s horizon it is within 8 mm of a fine integration for |steer| <= 0.5 rad, while
-    its exact Hessian costs 2.5x fewer operations than RK4's (the largest share of an
-    interior-point iteration here)."""
-    k1 = f(s, u)
-    return s + dt_s * f(s + 0.5 * dt_s * k1, u)
-
-
 def rk4_step(f: ca.Function, s: ca.SX, u: ca.SX, dt_s: float) -> ca.SX:
     """One RK4 step of ``s' = f(s, u)``."""
     k1 = f(s, u)
@@ -235,7 +215,7 @@ class MpcSolver:
 
     def _build(self, n_slots: int) -> _Compiled:
         n, dt, veh = self.n, self.dt_s, self.vehicle
-        f = _bicycle(veh)
+        f = bicycle_function(veh)
         n_stage_p = NREF + NOBS * n_slots
         p_x0 = ca.SX.sym("x0", NX)
         p_w = ca.SX.sym("w", N_W)

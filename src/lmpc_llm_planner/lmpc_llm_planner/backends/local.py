@@ -71,6 +71,17 @@ def find_packaged_model(package: str = MODEL_PACKAGE) -> Path:
     return Path(files[0])
 
 
+def packaged_tokenizer() -> Optional[Any]:
+    """The packaged model's tokenizer (vocabulary only, no weights) for counting prompt
+    tokens, or None when the ``local`` extra or the model package is not installed."""
+    try:
+        import llama_cpp
+        path = find_packaged_model()
+    except (ImportError, BackendError):
+        return None
+    return llama_cpp.Llama(model_path=str(path), vocab_only=True, verbose=False)
+
+
 def _import_llama_cpp() -> Any:
     try:
         import llama_cpp
