@@ -62,9 +62,7 @@ def test_topics_types_payloads_and_rates(tmp_path: Path, domain_id: int) -> None
     node.create_subscription(String, "/lmpc/control", collect("control", Control), keep_all)
     seen: dict[str, list[str]] = {}
     lister: subprocess.Popen[str] | None = None
-    # The observer joins the domain first: with LOCALHOST discovery Fast DDS announces
-    # to participant ids 0-3 only, so the first four participants (this observer and the
-    # three nodes) all see each other and every later one (lmpc-topics) sees them all.
+    # The observer joins the domain first, so it sees every endpoint from the start.
     # Realtime clock: the graph lives long enough (~20 s) to be inspected while it runs.
     graph = subprocess.Popen(
         [sys.executable, str(RUN_GRAPH), "--scenario", "usi", "--seed", "0", "--planner", "rules",
@@ -81,7 +79,7 @@ def test_topics_types_payloads_and_rates(tmp_path: Path, domain_id: int) -> None
             if lister is None and len(received["control"]) > 20:
                 # The inspection tool, run as a user would, while the graph is live.
                 lister = subprocess.Popen(
-                    [sys.executable, str(TOPICS), "--discovery-s", "8", "list",
+                    [sys.executable, str(TOPICS), "--discovery-s", "12", "--settle-s", "5", "list",
                      "--window-s", "2"],
                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         out = graph.communicate(timeout=60)[0]
