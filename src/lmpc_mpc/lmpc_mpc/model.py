@@ -1,13 +1,63 @@
-"""The MPC's internal vehicle model (CasADi), shared by the NLP and the RTI solvers.
+"""What the NLP and the RTI solvers share: the problem layout, its symbols and bounds,
+and the internal vehicle model (CasADi).
 
 A kinematic bicycle about the box centre (the bridge's plant, ``lmpc_bridge.dynamics``),
-integrated with one explicit midpoint (RK2) step per stage.
+integrated with one explicit midpoint (RK2) step per stage. The state (NX) is
+x, y, yaw, v plus earlier controls (two accel / steer pairs), so the smoothness
+terms stay stage-local (FATROP's stage-wise structure).
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import casadi as ca
 
 from lmpc_msgs_py.vehicle import VehicleParams
+
+NX = 8
+NU = 2
+NREF = 6  # per stage: x, y, yaw, v, curvature of the reference; accel bias A_hat_a,k
+NOBS = 6
+N_W = 14  # pos, v, yaw, steer_trk, s_a, s_d, g_a, g_d, l_a, l_d, saf, (unused), bias_d, lat
+
+
+@dataclass(frozen=True)
+class StageSymbols:
+    """Parameters and variables of one problem, declared in stage order."""
+
+    x0: ca.SX
+    """Initial state (NX)."""
+    w: ca.SX
+    """Weights (N_W)."""
+    stage_p: list[ca.SX]
+    """Per stage 0..N: the reference (NREF) and the obstacle slots (NOBS each)."""
+    xs: list[ca.SX]
+    """States 0..N."""
+    us: list[ca.SX]
+    """Controls 0..N-1 (``nu`` wide: the RTI appends its safety slacks)."""
+
+
+def stage_symbols(n: int, n_slots: int, nu: int = NU) -> StageSymbols:
+    return StageSymbols(
+        x0=ca.SX.sym("x0", NX), w=ca.SX.sym("w", N_W),
+        stage_p=[ca.SX.sym(f"p{k}", NREF + NOBS * n_slots) for k in range(n + 1)],
+        xs=[ca.SX.sym(f"x{k}", NX) for k in range(n + 1)],
+        us=[ca.SX.sym(f"u{k}", nu) for k in range(n)])
+
+
+BIG = 1e6
+"""Stand-in for an unbounded variable."""
+
+
+def box_bounds(veh: VehicleParams) -> tuple[list[float], list[float], list[float], list[float]]:
+    """Hard bounds (x_lb, x_ub, u_lb, u_ub) on the state (incl. the carried previous
+    controls) and on the controls (accel, steer)."""
+    x_lb = [-BIG, -BIG, -BIG, 0.0, -veh.max_decel_mps2, -veh.max_steer_rad,
+            -veh.max_decel_mps2, -veh.max_steer_rad]
+    x_ub = [BIG, BIG, BIG, veh.max_speed_mps, veh.max_accel_mps2, veh.max_steer_rad,
+            veh.max_accel_mps2, veh.max_steer_rad]
+    return x_lb, x_ub, [-veh.max_decel_mps2, -veh.max_steer_rad], \
+        [veh.max_accel_mps2, veh.max_steer_rad]
 
 
 def bicycle_function(vehicle: VehicleParams) -> ca.Function:

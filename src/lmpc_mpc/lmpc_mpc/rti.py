@@ -28,13 +28,8 @@ import casadi as ca
 import numpy as np
 
 from lmpc_msgs_py.vehicle import VehicleParams
-from lmpc_mpc.model import bicycle_function, midpoint_step
-
-NX = 8
-NU = 2
-NREF = 6
-NOBS = 6
-N_W = 14
+from lmpc_mpc.model import (
+    BIG, N_W, NOBS, NREF, NU, NX, bicycle_function, box_bounds, midpoint_step, stage_symbols)
 _SLACK_REG = 1e-4
 """Weight on every slack squared (also unused ones): keeps the QP Hessian positive
 definite in the slacks, so an unused slot's slack is exactly 0 and not free."""
@@ -109,22 +104,13 @@ class RtiQp:
     def _build(self, dt: float, veh: VehicleParams, qp_solver: str) -> None:
         n, m = self.n, self.n_slots
         f = bicycle_function(veh)
-        n_stage_p = NREF + NOBS * m
-        p_x0 = ca.SX.sym("x0", NX)
-        p_w = ca.SX.sym("w", N_W)
-        p_st = [ca.SX.sym(f"p{k}", n_stage_p) for k in range(n + 1)]
-        xs = [ca.SX.sym(f"x{k}", NX) for k in range(n + 1)]
-        us = [ca.SX.sym(f"u{k}", self.nu) for k in range(n)]
+        sym = stage_symbols(n, m, self.nu)
+        p_x0, p_w, p_st, xs, us = sym.x0, sym.w, sym.stage_p, sym.xs, sym.us
         (w_pos, w_v, w_yaw, w_str, s_a, s_d, g_a, g_d, l_a, l_d, w_saf, _, b_d, w_lat) = \
             [p_w[i] for i in range(N_W)]
         rate = veh.max_steer_rate_radps * dt
-        big = 1e6
-        x_lb = [-big, -big, -big, 0.0, -veh.max_decel_mps2, -veh.max_steer_rad,
-                -veh.max_decel_mps2, -veh.max_steer_rad]
-        x_ub = [big, big, big, veh.max_speed_mps, veh.max_accel_mps2, veh.max_steer_rad,
-                veh.max_accel_mps2, veh.max_steer_rad]
-        u_lb = [-veh.max_decel_mps2, -veh.max_steer_rad] + [0.0] * m
-        u_ub = [veh.max_accel_mps2, veh.max_steer_rad] + [big] * m
+        x_lb, x_ub, u_lb, u_ub = box_bounds(veh)
+        u_lb, u_ub = u_lb + [0.0] * m, u_ub + [BIG] * m  # the safety slacks are >= 0
         w_vars: list[ca.SX] = []
         res: list[ca.SX] = []
         g: list[ca.SX] = []
@@ -172,7 +158,7 @@ class RtiQp:
                 short = gap + headway * nxt[3] - (kx * nxt[0] + ky * nxt[1] + k0)
                 g.append(u[NU + i] - on * short)
                 lbg.append(0.0)
-                ubg.append(big)
+                ubg.append(BIG)
                 res.append(sq(w_saf * on + _SLACK_REG) * u[NU + i])
             kap = pn[4]
             d_ref = ca.atan(veh.wheelbase_m * kap)

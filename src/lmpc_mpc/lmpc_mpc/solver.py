@@ -47,14 +47,9 @@ import numpy as np
 
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
 from lmpc_mpc.config import MpcConfig, ResolvedWeights
-from lmpc_mpc.model import bicycle_function, midpoint_step  # noqa: F401 (re-export)
+from lmpc_mpc.model import (  # noqa: F401 (NREF, midpoint_step: re-exported)
+    BIG, N_W, NOBS, NREF, NU, NX, bicycle_function, box_bounds, midpoint_step, stage_symbols)
 from lmpc_mpc.rti import RtiQp
-
-NX = 8
-NU = 2
-NREF = 6  # per stage: x, y, yaw, v, curvature of the reference; accel bias A_hat_a,k
-NOBS = 6
-N_W = 14  # pos, v, yaw, steer_trk, s_a, s_d, g_a, g_d, l_a, l_d, saf, (unused), bias_d, lat
 _RELEVANCE_MARGIN_M = 6.0
 """An obstacle farther than this beyond ``d_hat`` from every guess of the ego at a stage
 is left out of that stage (its safety term is zero there; see ``MpcSolver._pack``)."""
@@ -216,12 +211,8 @@ class MpcSolver:
     def _build(self, n_slots: int) -> _Compiled:
         n, dt, veh = self.n, self.dt_s, self.vehicle
         f = bicycle_function(veh)
-        n_stage_p = NREF + NOBS * n_slots
-        p_x0 = ca.SX.sym("x0", NX)
-        p_w = ca.SX.sym("w", N_W)
-        p_st = [ca.SX.sym(f"p{k}", n_stage_p) for k in range(n + 1)]
-        xs = [ca.SX.sym(f"x{k}", NX) for k in range(n + 1)]
-        us = [ca.SX.sym(f"u{k}", NU) for k in range(n)]
+        sym = stage_symbols(n, n_slots)
+        p_x0, p_w, p_st, xs, us = sym.x0, sym.w, sym.stage_p, sym.xs, sym.us
         (w_pos, w_v, w_yaw, w_str, s_a, s_d, g_a, g_d, l_a, l_d, w_saf, _, b_d, w_lat) = \
             [p_w[i] for i in range(N_W)]
         rate = veh.max_steer_rate_radps * dt
@@ -231,13 +222,7 @@ class MpcSolver:
         ubg: list[float] = []
         lbx: list[float] = []
         ubx: list[float] = []
-        big = 1e6
-        x_lb = [-big, -big, -big, 0.0, -veh.max_decel_mps2, -veh.max_steer_rad,
-                -veh.max_decel_mps2, -veh.max_steer_rad]
-        x_ub = [big, big, big, veh.max_speed_mps, veh.max_accel_mps2, veh.max_steer_rad,
-                veh.max_accel_mps2, veh.max_steer_rad]
-        u_lb = [-veh.max_decel_mps2, -veh.max_steer_rad]
-        u_ub = [veh.max_accel_mps2, veh.max_steer_rad]
+        x_lb, x_ub, u_lb, u_ub = box_bounds(veh)
         cost = 0
         # FATROP's stage layout: per stage k the gap-closing rows (x_{k+1} = F(x_k, u_k))
         # first, then the stage's path constraints.
@@ -250,8 +235,8 @@ class MpcSolver:
             if k == 0:
                 # the initial state is a parameter; speed may exceed the bound (e.g. a
                 # downhill push) so stage 0 carries no state bounds, only this equality
-                lbx += [-big] * NX
-                ubx += [big] * NX
+                lbx += [-BIG] * NX
+                ubx += [BIG] * NX
                 path_g.append(x - p_x0)
                 path_lb += [0.0] * NX
                 path_ub += [0.0] * NX
