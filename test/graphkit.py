@@ -289,6 +289,7 @@ class Probe:
         self.diagnostics: dict[str, dict[str, str]] = {}
         self.diag_messages: dict[str, str] = {}
         self._pubs: dict[str, Any] = {}
+        self._subs: dict[str, Any] = {}
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 50)
         self._stop = False
         self._thread = threading.Thread(target=self._spin, daemon=True)
@@ -329,7 +330,8 @@ class Probe:
             with self.lock:
                 self.received[name].append((time.monotonic(), msg))
 
-        self.node.create_subscription(msg_type or String, topic, cb, qos or lmpc_qos.STREAM)
+        self._subs[topic] = self.node.create_subscription(
+            msg_type or String, topic, cb, qos or lmpc_qos.STREAM)
 
     def messages(self, topic: str) -> list[tuple[float, Any]]:
         with self.lock:
@@ -357,6 +359,14 @@ class Probe:
         have = self._pubs[topic].get_subscription_count() if topic in self._pubs else 0
         raise AssertionError(f"{topic}: {have} subscribers after {timeout_s:.0f} s, "
                              f"expected {count}")
+
+    def wait_publishers(self, topic: str, count: int, timeout_s: float) -> None:
+        """Wait until this probe's subscription on ``topic`` (see :meth:`listen`) has matched
+        ``count`` publishers. A short sync run can finish before discovery on a busy machine
+        has matched a late subscriber, so tests that count messages wait for this first."""
+        sub = self._subs[topic]
+        self.wait_until(f"{count} publisher(s) on {topic}",
+                        lambda: sub.get_publisher_count() >= count, timeout_s)
 
     def wait_until(self, what: str, pred: Any, timeout_s: float) -> None:
         deadline = time.monotonic() + timeout_s

@@ -254,9 +254,11 @@ def test_mpc_solver_failure_gives_fallback_control_never_nan(
     mpc_yaml = write_mpc_config(tmp_path / "mpc.yaml", **overrides)
     with NodeSet(run_dir, domain_id) as g, Probe(domain_id) as probe:
         probe.listen("/lmpc/control")
-        g.start("bridge", bridge_params(run_dir, clock_mode="sync", max_time_s=6.0))
         # clock_mode '' = the config decides whether the wall-time budget is enforced
         g.start("mpc", _sim(clock_mode="", config_file=str(mpc_yaml)))
+        # the 6 s sync run takes about a second: the probe must hear the MPC before it starts
+        probe.wait_publishers("/lmpc/control", 1, 60)
+        g.start("bridge", bridge_params(run_dir, clock_mode="sync", max_time_s=6.0))
         assert g.wait_exit("bridge", 90) == 0
         mpc_diag = probe.diag("/mpc_controller")
         controls = [json.loads(m.data) for _, m in probe.messages("/lmpc/control")]
