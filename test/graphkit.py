@@ -40,6 +40,9 @@ class GraphRun:
     summary: dict[str, Any]
     episode: dict[str, Any]
     output: str
+    crosstalk: list[str]
+    """Node warnings about several publishers on a one-producer topic (another graph on
+    the domain): a run that has any did not drive on its own data."""
 
 
 def run_graph(tmp_path: Path, domain_id: int, *extra: str, timeout_s: float = 300) -> GraphRun:
@@ -57,7 +60,10 @@ def run_graph(tmp_path: Path, domain_id: int, *extra: str, timeout_s: float = 30
     summary = json.loads(summary_path.read_text())
     episode_path = run_dir / "episode.json"
     episode = json.loads(episode_path.read_text()) if episode_path.exists() else {}
-    return GraphRun(proc.returncode, summary, episode, output)
+    crosstalk = [line for log in sorted(run_dir.glob("*.log"))
+                 for line in log.read_text(errors="replace").splitlines()
+                 if "publishers on" in line]
+    return GraphRun(proc.returncode, summary, episode, output, crosstalk)
 
 
 def graph_processes(domain_id: int) -> list[int]:

@@ -277,3 +277,28 @@ def test_mpc_solver_failure_gives_fallback_control_never_nan(
     assert max(s["v_mps"] for s in steps[len(steps) // 2:]) <= steps[0]["v_mps"] + 0.05
     assert ep["metrics"]["collisions"] == 0
     assert logs_with_tracebacks(run_dir) == {}
+
+
+def test_a_second_graph_on_the_domain_is_reported(tmp_path: Path, domain_id: int) -> None:
+    """Two producers on a one-producer topic (two graphs sharing ROS_DOMAIN_ID): the node
+    warns with the topic and counts it; one producer is not reported."""
+    run_dir = tmp_path / "run"
+    with NodeSet(run_dir, domain_id) as g, Probe(domain_id) as first, \
+            Probe(domain_id) as second:
+        g.start("mpc", _sim(clock_mode="sync"))
+        g.wait_for_log("mpc", "waiting for /lmpc/map and /lmpc/ego_state", 60)
+        first.publish("/lmpc/ego_state", "not json")
+        first.wait_subscribers("/lmpc/ego_state", 1, 20)
+        first.wait_until("the MPC's diagnostics", lambda: first.diag(
+            "/mpc_controller").get("crosstalk_topics") is not None, 10)
+        time.sleep(2.2)  # two more diagnostics periods with the first producer matched
+        assert first.diag("/mpc_controller")["crosstalk_topics"] == "0"
+        assert "publishers on" not in g.procs["mpc"].log()
+        second.publish("/lmpc/ego_state", "not json either")
+        second.wait_subscribers("/lmpc/ego_state", 1, 20)
+        g.wait_for_log("mpc", "2 publishers on /lmpc/ego_state", 10)
+        first.wait_until("crosstalk counted", lambda: first.diag(
+            "/mpc_controller").get("crosstalk_topics") == "1", 5)
+        codes = g.stop_all()
+    assert set(codes.values()) == {0}, codes
+    assert logs_with_tracebacks(run_dir) == {}

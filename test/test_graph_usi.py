@@ -44,6 +44,7 @@ def test_usi_reaches_target_without_collision(
     run = run_graph(tmp_path, domain_id, "--scenario", "usi", "--seed", str(seed),
                     "--planner", planner, "--clock", "sync", "--quiet")
     s = run.summary
+    assert run.crosstalk == [], "another graph shared this test's ROS domain"
     assert s["outcome"] == "reached", f"{s['outcome']}: {s['detail']}\n{run.output[-3000:]}"
     assert run.returncode == 0
     assert s["collisions"] == 0

@@ -13,7 +13,7 @@ import signal
 import sys
 import time
 from collections import Counter
-from typing import Callable, Generic, Optional, TypeVar
+from typing import Any, Callable, Generic, Optional, TypeVar
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -58,6 +58,7 @@ class LmpcNode(Node):
         self.ego_id = ego_id
         self.counters: Counter[str] = Counter()
         self._last_log: dict[str, float] = {}
+        self._inputs: dict[str, Any] = {}  # topic -> subscription of a single-producer topic
         self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
 
     # -- names and I/O -------------------------------------------------------------------
@@ -92,7 +93,7 @@ class LmpcNode(Node):
                 return
             callback(msg)
 
-        self.create_subscription(String, full, on_raw, qos)
+        self._inputs[full] = self.create_subscription(String, full, on_raw, qos)
 
     # -- counters and throttled logs -----------------------------------------------------
     def count_drop(self, topic: str, field: str, reason: str) -> None:
@@ -123,7 +124,26 @@ class LmpcNode(Node):
         else:
             logger.warning(text)
 
+    def check_single_producers(self) -> None:
+        """Warn when a topic of the graph (one producer each) has several publishers.
+
+        Two graphs on one ROS_DOMAIN_ID interleave their ego states, controls and decisions;
+        the sequence gate then drops or re-syncs, and the run silently drives on someone
+        else's data. Counted as ``crosstalk_topics`` and logged (throttled) with the topic."""
+        shared = 0
+        for topic, sub in self._inputs.items():
+            n = sub.get_publisher_count()
+            if n > 1:
+                shared += 1
+                self.log_event(
+                    f"crosstalk:{topic}",
+                    f"{n} publishers on {topic}, which has one producer per graph: another "
+                    f"graph or tool shares ROS_DOMAIN_ID {self.context.get_domain_id()}? "
+                    "Give each graph its own domain (run_graph.py --domain-id)")
+        self.counters["crosstalk_topics"] = shared
+
     def publish_diagnostics(self, level: int, message: str, extra: dict[str, object]) -> None:
+        self.check_single_producers()
         values = {**{k: v for k, v in self.counters.items()}, **extra}
         status = DiagnosticStatus(
             level=bytes([level]),
