@@ -4,8 +4,9 @@
 The same logic objects as the nodes (DESIGN §1): ``lmpc_bridge.runner.run_episode``
 with the MPC controller and, for ``lmpc-*`` methods, the planner core. Writes
 ``results.csv`` (one row per scene and method), ``table.md`` (the paper's Table I
-layout) and ``summary.json`` (per family and method, plus the relative O.C.
-change of each method against ``mpc``).
+layout), ``summary.json`` (per family and method, plus the relative O.C.
+change of each method against ``mpc``) and, for ``lmpc-*`` methods, each scene's
+decision log in ``decisions/<family>-<seed>-<method>.jsonl``.
 
     benchmark.py --families usi --seeds 0-24 --methods mpc,lmpc-rules --out runs/bench
     benchmark.py --scene examples/city.yaml --methods mpc,lmpc-rules   # your own network
@@ -57,10 +58,11 @@ def _percentile(values: Sequence[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, max(0, math.ceil(q * len(ordered)) - 1))]
 
 
-def make_planner(method: str, instruction: Optional[str] = None) -> Any:
+def make_planner(method: str, instruction: Optional[str] = None, *,
+                 log_path: Optional[Path] = None) -> Any:
     """The planner core of ``method`` (None for the ``mpc`` baseline); ``instruction``
     reaches it as the user's text through ``PlannerCore.on_instruction``, as the node's
-    ``/lmpc/instruction`` subscription does."""
+    ``/lmpc/instruction`` subscription does; ``log_path``: its JSON-lines decision log."""
     if method == "mpc":
         return None
     from lmpc_llm_planner.backends import make_backend
@@ -73,7 +75,7 @@ def make_planner(method: str, instruction: Optional[str] = None) -> Any:
     # a simulated latency: config/planner_local.yaml says why), or every call times out.
     config = load_planner_config(LOCAL_CONFIG_PATH if backend_name == "local" else None,
                                  overrides={"backend": backend_name})
-    core = PlannerCore(config, make_backend(config), load_mpc_config())
+    core = PlannerCore(config, make_backend(config), load_mpc_config(), log_path=log_path)
     if instruction:
         core.on_instruction(instruction)
     return core
@@ -95,15 +97,18 @@ class _SceneFileSim:
 
 def run_scene(method: str, family: str, seed: int, work_dir: str,
               scene_file: Optional[str] = None,
-              instruction: Optional[str] = None) -> dict[str, Any]:
+              instruction: Optional[str] = None,
+              log_dir: Optional[str] = None) -> dict[str, Any]:
     """One episode in this worker process; returns its results row.
 
     With ``scene_file`` the episode runs that scene description (``family`` and
     ``seed`` are then its name and SUMO seed, for the row). Anything that raises gives
     an ``error`` row with the reason (exceptions holding SUMO objects do not pickle).
-    ``instruction``: the user's text for the planner (ignored by ``mpc``)."""
+    ``instruction``: the user's text for the planner (ignored by ``mpc``); ``log_dir``:
+    where the planner's decision log of the scene goes (``<family>-<seed>-<method>.jsonl``).
+    """
     try:
-        return _run_scene(method, family, seed, work_dir, scene_file, instruction)
+        return _run_scene(method, family, seed, work_dir, scene_file, instruction, log_dir)
     except Exception as exc:  # noqa: BLE001 - one broken scene must not end the run
         return error_row(method, family, seed, f"{type(exc).__name__}: {exc}")
 
@@ -116,8 +121,8 @@ def error_row(method: str, family: str, seed: int, detail: str) -> dict[str, Any
 
 
 def _run_scene(method: str, family: str, seed: int, work_dir: str,
-               scene_file: Optional[str], instruction: Optional[str] = None
-               ) -> dict[str, Any]:
+               scene_file: Optional[str], instruction: Optional[str] = None,
+               log_dir: Optional[str] = None) -> dict[str, Any]:
     global _SIM, _SOLVER
     from lmpc_bridge.runner import run_episode
     from lmpc_bridge.sim import SumoSim
@@ -134,6 +139,9 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
     _SOLVER.reset()  # no warm start carried over from the previous episode
     started = time.perf_counter()
     sim, max_time_s = _SIM, 200.0
+    log_path = None if log_dir is None else Path(log_dir) / f"{family}-{seed:03d}-{method}.jsonl"
+    if log_path is not None:
+        log_path.unlink(missing_ok=True)  # a rerun into the same folder starts the log afresh
     if scene_file is not None:
         from lmpc_bridge.scenarios.external import build_external_scene
 
@@ -142,7 +150,8 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
         sim, max_time_s = _SceneFileSim(_SIM, scene), scene.max_time_s
     result = run_episode(sim, family=family, seed=seed,
                          controller=MpcController(config, solver=_SOLVER),
-                         planner=make_planner(method, instruction), max_time_s=max_time_s)
+                         planner=make_planner(method, instruction, log_path=log_path),
+                         max_time_s=max_time_s)
     m = result.metrics
     return {
         "family": family, "seed": seed, "method": method, "outcome": result.outcome,
@@ -241,8 +250,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     rows: list[dict[str, Any]] = []
     t0 = time.monotonic()
     with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
-        futures = {pool.submit(run_scene, m, f, s, work_dir, scene_file, args.instruction):
-                   (m, f, s) for m, f, s in jobs}
+        log_dir = str(args.out / "decisions")
+        futures = {pool.submit(run_scene, m, f, s, work_dir, scene_file, args.instruction,
+                               log_dir): (m, f, s) for m, f, s in jobs}
         for fut in as_completed(futures):
             m, f, s = futures[fut]
             try:
