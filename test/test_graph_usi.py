@@ -7,6 +7,7 @@ benchmark (the same logic without ROS) must give the same outcome and O.C.
 from __future__ import annotations
 
 import csv
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -32,7 +33,14 @@ def in_process(tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, int]
         capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     with open(out / "results.csv") as fh:
-        return {(row["method"], int(row["seed"])): row for row in csv.DictReader(fh)}
+        rows = {(row["method"], int(row["seed"])): row for row in csv.DictReader(fh)}
+    for seed in SEEDS:  # every decision of an lmpc-* scene is in its decision log
+        log = out / "decisions" / f"usi-{seed:03d}-lmpc-rules.jsonl"
+        lines = log.read_text().splitlines()
+        assert len(lines) == int(rows[("lmpc-rules", seed)]["decisions"]) >= 1, log
+        assert all(json.loads(line)["attempts"] for line in lines), log
+    assert not list((out / "decisions").glob("*-mpc.jsonl"))
+    return rows
 
 
 @pytest.mark.parametrize("planner", ["none", "rules"])
