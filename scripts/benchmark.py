@@ -51,7 +51,8 @@ def parse_seeds(text: str) -> list[int]:
     return sorted(seeds)
 
 
-def _percentile(values: Sequence[float], q: float) -> float:
+def percentile(values: Sequence[float], q: float) -> float:
+    """Nearest-rank percentile (nan for no values)."""
     if not values:
         return math.nan
     ordered = sorted(values)
@@ -162,10 +163,10 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
         "decisions": result.decisions, "fallbacks": result.fallbacks, "steps": m.steps,
         "solve_ms_median": round(statistics.median(result.solve_times_ms), 3)
         if result.solve_times_ms else math.nan,
-        "solve_ms_p99": round(_percentile(result.solve_times_ms, 0.99), 3),
+        "solve_ms_p99": round(percentile(result.solve_times_ms, 0.99), 3),
         "compute_ms_median": round(statistics.median(result.compute_wall_ms), 3)
         if result.compute_wall_ms else math.nan,
-        "compute_ms_p99": round(_percentile(result.compute_wall_ms, 0.99), 3),
+        "compute_ms_p99": round(percentile(result.compute_wall_ms, 0.99), 3),
         "wall_s": round(time.perf_counter() - started, 2),
         "detail": result.detail,
     }

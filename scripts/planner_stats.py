@@ -28,6 +28,7 @@ import argparse
 import json
 import math
 import statistics
+import sys
 import tempfile
 import threading
 import time
@@ -36,29 +37,11 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchmark import parse_seeds, percentile  # noqa: E402 - the script folder first
+
 FAMILIES = ("si", "usi", "lane", "rab", "eoa", "construction")
 BACKENDS = ("rules", "replay", "openai", "local")
-
-
-def parse_seeds(text: str) -> list[int]:
-    """``0-2,5`` -> [0, 1, 2, 5]."""
-    out: list[int] = []
-    for part in text.split(","):
-        part = part.strip()
-        if "-" in part:
-            lo, hi = part.split("-", 1)
-            out.extend(range(int(lo), int(hi) + 1))
-        elif part:
-            out.append(int(part))
-    return out
-
-
-def percentile(values: Sequence[float], q: float) -> float:
-    """Nearest-rank percentile (nan for no values)."""
-    if not values:
-        return math.nan
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, max(0, math.ceil(q * len(ordered)) - 1))]
 
 
 def smollm2_tokenizer() -> Optional[Any]:
