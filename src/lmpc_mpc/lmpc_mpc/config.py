@@ -149,7 +149,17 @@ class MpcConfig(BaseModel):
     from the shifted previous solution (``lmpc_mpc.rti``). The environment variable
     ``LMPC_MPC_SOLVER`` overrides the file (see :func:`load_mpc_config`)."""
     rti_iterations: int = Field(1, ge=1, le=50)
-    """``sqp_rti``: Gauss-Newton SQP steps per control step from a warm start."""
+    """``sqp_rti``: at most this many Gauss-Newton SQP steps per control step from a warm
+    start. The first step is always taken; another only while the last one moved a
+    planned control by more than ``rti_step_accel_mps2`` / ``rti_step_steer_rad`` (the
+    guess was far from the new optimum: a jump of the reference or of the active
+    obstacles). 1 (default) = the plain one-step RTI: the extra full steps have no
+    globalisation and can hop to another local optimum (usi seed 3, docs/lmpc_mpc.md)."""
+    rti_step_accel_mps2: float = Field(0.5, gt=0.0, le=10.0)
+    """``sqp_rti``: a warm step that changed a planned acceleration by more than this
+    is followed by another (up to ``rti_iterations``)."""
+    rti_step_steer_rad: float = Field(0.05, gt=0.0, le=1.0)
+    """``sqp_rti``: the same for a planned steer angle."""
     rti_cold_iterations: int = Field(5, ge=1, le=50)
     """``sqp_rti``: steps from a cold start (first step, after a failure or a reset),
     where the guess is a plain roll-out and one step is not enough."""
@@ -165,7 +175,8 @@ class MpcConfig(BaseModel):
     (same seed, same numbers) and not on how loaded the machine is. The node sets it
     from its ``clock_mode`` parameter."""
     max_iterations: int = Field(60, ge=1, le=10000)
-    """Iteration cap of the NLP solver per solve."""
+    """Iteration cap of the NLP solver per solve; for ``sqp_rti`` the QP solver's
+    iteration cap per Gauss-Newton step (a QP that needs more is a failed solve)."""
     weight_pool: WeightPool
     """The levels of the four weight groups (the planner picks names, never numbers)."""
     accel_intervals_mps2: tuple[Interval, ...]
@@ -262,14 +273,21 @@ def _neutral(intervals: tuple[Interval, ...]) -> int:
 def load_mpc_config(path: str | Path | None = None) -> MpcConfig:
     """Load and validate the MPC config (``None``: the packaged ``config/mpc.yaml``).
 
-    ``LMPC_MPC_SOLVER`` (if set and not empty) replaces the file's ``solver``.
+    ``LMPC_MPC_SOLVER`` (if set and not empty) replaces the file's ``solver``;
+    ``sqp_rti:K`` also sets ``rti_iterations`` to K (as ``bench_mpc --solvers``).
     Raises :class:`MpcConfigError` naming the file, the field and the reason.
     """
     file = Path(path) if path is not None and str(path) != "" else DEFAULT_CONFIG_PATH
     data = read_mapping(file, what="MPC config", error=MpcConfigError)
     override = os.environ.get(SOLVER_ENV, "").strip()
     if override:
-        data = {**data, "solver": override}
+        name, sep, steps = override.partition(":")
+        data = {**data, "solver": name}
+        if sep:
+            if name != "sqp_rti" or not steps.isdigit():
+                raise MpcConfigError(
+                    f"{SOLVER_ENV}={override!r}: expected a solver name or sqp_rti:K (K >= 1)")
+            data["rti_iterations"] = int(steps)
     try:
         return MpcConfig.model_validate(data)
     except ValidationError as exc:

@@ -19,7 +19,9 @@ The QP has the stage structure ``[x0 u0 x1 u1 ... xN]`` with the gap rows of eac
 before its path rows, which HPIPM's (and FATROP's) CasADi conic interface needs. A step
 whose QP fails, or that gives non-finite numbers, is a failure (the caller then uses the
 shifted previous plan, then brakes). An approximation of the NLP's optimum: one step
-from a good guess converges over consecutive control steps, not within one.
+from a good guess converges over consecutive control steps, not within one; the caller
+(:meth:`lmpc_mpc.solver.MpcSolver._solve_rti`) takes further steps while a step is
+large (a far guess after a jump), see :meth:`RtiQp.iterate`.
 """
 from __future__ import annotations
 
@@ -71,7 +73,7 @@ class RtiQp:
     """
 
     def __init__(self, *, horizon: int, dt_s: float, vehicle: VehicleParams, n_slots: int,
-                 qp_solver: str = "hpipm") -> None:
+                 qp_solver: str = "hpipm", qp_iter_max: int = 50) -> None:
         if qp_solver not in QP_SOLVERS:
             raise RtiError(f"qp_solver must be one of {QP_SOLVERS}, got {qp_solver!r}")
         self.n = horizon
@@ -79,6 +81,9 @@ class RtiQp:
         self.nu = NU + n_slots
         self.stage_len = NX + self.nu
         self.n_var = (horizon + 1) * NX + horizon * self.nu
+        if qp_iter_max < 1:
+            raise RtiError(f"qp_iter_max must be >= 1, got {qp_iter_max}")
+        self._qp_iter_max = qp_iter_max
         self._build(dt_s, vehicle, qp_solver)
 
     # -- layout helpers ------------------------------------------------------------------
@@ -184,7 +189,7 @@ class RtiQp:
         ng = [1 + m] * n + [0]
         opts: dict = {"N": n, "nx": [NX] * (n + 1), "nu": [self.nu] * n + [0], "ng": ng,
                       "error_on_fail": False, "print_time": False}
-        opts["hpipm"] = dict(_HPIPM_OPTIONS)
+        opts["hpipm"] = {**_HPIPM_OPTIONS, "iter_max": self._qp_iter_max}
         self._qp = ca.conic("rti_qp", qp_solver, {"h": hess.sparsity(), "a": jg.sparsity()},
                             opts)
 
