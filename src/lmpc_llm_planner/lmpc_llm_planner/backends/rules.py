@@ -110,6 +110,20 @@ HARD_BRAKE_MPS2 = 3.0
 STANDOFF_M = 10.0
 """Waiting to pass a standing vehicle in its lane, the ego stops this far behind it (from
 much closer the swerve is out of a car's steering reach without reversing)."""
+HEADWAY_S = 2.0
+"""Time gap the ego keeps at least behind a moving leader in its lane (rules headway)."""
+HEADWAY_REACTION_S = 1.0
+"""The ego's reaction time in that gap: an emergency decision comes only once the TTC to
+the braking leader is under `emergency_ttc_s` (2 s), about a second after it starts braking
+(eoa seed 2: the ego ended 3 m behind the hazard with 0.5 s here)."""
+EGO_BRAKE_MPS2 = 5.0
+"""The ego's braking in that gap (midpoint of the strongest braking interval)."""
+LEADER_BRAKE_MPS2 = 8.0
+"""How hard a leader may brake (eoa hazards brake at 8 m/s^2; a car's emergency braking)."""
+HEADWAY_OPEN_FRACTION = 0.85
+"""Below this fraction of the wanted gap the ego brakes gently to open it (above: holds)."""
+HEADWAY_MIN_SPEED_MPS = 4.0
+"""Below this speed the MPC's own following distance is enough (queues, creeping)."""
 CLOSED_LOOKAHEAD_M = 400.0
 """A lane the user said is closed is left once the ego knows (it is on that lane of an
 edge with a neighbour lane): the instruction is the only way to know beyond sensing."""
@@ -277,6 +291,8 @@ class RulesBackend:
         if turn != "yield":
             self._path_rule(scene, plan, accel, emergency=emergency,
                             committed=turn == "commit")
+        if turn == "none" and not plan.speed_set:
+            self._headway_rule(scene, plan, accel)
         if not plan.speed_set:
             self._go(scene, plan, accel)
         if emergency:
@@ -355,9 +371,12 @@ class RulesBackend:
         turn = "right" if obs.map.left_hand_traffic else "left"
         ego = obs.ego
         half_len = 0.5 * ego.length_m
+        # the clear time assumes the acceleration the rules ask for when the ego goes
+        go_accel = max(_mid(accel[_accel_index(accel, cfg.turn_accel_mps2)]),
+                       cfg.turn_accel_mps2)
         conflicts = []
         for view in scene.agents:
-            c = self._oncoming_conflict(scene, view, man, yield_dirs)
+            c = self._oncoming_conflict(scene, view, man, yield_dirs, go_accel)
             if c is not None:
                 conflicts.append(c)
         if man.inside_junction:
@@ -373,7 +392,11 @@ class RulesBackend:
             or ego.v_mps ** 2 / (2.0 * front_to_zone) <= cfg.commit_decel_mps2)
         # hysteresis: once going, a gap that shrinks a little (estimates are noisy)
         # does not stop the ego again
-        margin = safe_gap_s - (cfg.go_hysteresis_s if previous_go else 0.0)
+        # a queue behind a waiting ego: accept the gap a driver under that pressure takes
+        # (the hysteresis margin, never less); every second waited holds them up too
+        queued = _queued_behind(scene)
+        margin = safe_gap_s - (cfg.go_hysteresis_s if previous_go or queued is not None
+                               else 0.0)
         unsafe = [c for c in conflicts if c.gap_s < margin]
         if conflicts and not can_stop and (man.inside_junction or ego.v_mps > 1.0):
             # inside (or too close to stop before) the oncoming lanes: never stop there
@@ -399,6 +422,13 @@ class RulesBackend:
             if man.inside_junction or man.dist_to_stop_line_m < half_len + _GO_ZONE_M:
                 plan.accel_index = _accel_index(accel, cfg.turn_accel_mps2)
                 plan.speed_set = True
+            elif conflicts:
+                # the gap was judged at the current speed: keep it (slowing down to the
+                # turn speed first turned accepted gaps into missed ones); the MPC slows
+                # for the curve itself
+                plan.accel_index = _neutral(accel)
+                plan.speed_set = True
+                plan.notes.append("I keep my speed up to the junction.")
             else:
                 self._approach_turn(man, ego.v_mps, plan, accel)
             return "go"
@@ -481,7 +511,8 @@ class RulesBackend:
             plan.notes.append(f"I keep about {v_turn:.0f} m/s for the turn.")
 
     def _oncoming_conflict(
-        self, scene: Scene, view: AgentView, man: Maneuver, yield_dirs: tuple[str, ...]
+        self, scene: Scene, view: AgentView, man: Maneuver, yield_dirs: tuple[str, ...],
+        go_accel_mps2: float,
     ) -> Optional[Conflict]:
         """The conflict when the agent is oncoming and its path crosses the ego's turn."""
         cfg = self.config
@@ -513,10 +544,17 @@ class RulesBackend:
         ego = scene.obs.ego
         d_clear = man.dist_to_stop_line_m + cr.ego_s_m + 0.5 * ego.length_m \
             + 0.5 * ag.width_m + CLEAR_MARGIN_M
-        t_clear = travel_time_s(
-            d_clear, v0_mps=ego.v_mps, accel_mps2=cfg.turn_accel_mps2,
-            vmax_mps=cfg.turn_speed_mps,
-        )
+        d_line = max(0.0, man.dist_to_stop_line_m)
+        if ego.v_mps > cfg.turn_speed_mps and d_line > 0.0:
+            # faster than the turn: about this speed to the line, then the turn speed (the
+            # MPC slows for the curve; assuming the approach speed through the junction
+            # overrated the gap)
+            t_clear = d_line / ego.v_mps + (d_clear - d_line) / cfg.turn_speed_mps
+        else:
+            t_clear = travel_time_s(
+                d_clear, v0_mps=ego.v_mps, accel_mps2=go_accel_mps2,
+                vmax_mps=cfg.turn_speed_mps,
+            )
         zone = cr.ego_s_m - 0.5 * ag.width_m - CLEAR_MARGIN_M
         return Conflict(view, cr.ego_s_m, t_agent, t_clear, zone)
 
@@ -597,7 +635,14 @@ class RulesBackend:
 
         limit = here.speed_limit_mps
         lead_here, _ = lane_state(here.id)
-        blocked = lead_here is not None and lead_here.agent.v_mps < cfg.moving_speed_mps \
+        # a standing leader, or one braking hard towards a standstill close ahead (eoa
+        # hazards brake at 8 m/s^2): take the free neighbour lane early, while there is
+        # still room to steer round it
+        stopping = lead_here is not None and (
+            lead_here.agent.v_mps < cfg.moving_speed_mps
+            or (lead_here.agent.a_mps2 < -HARD_BRAKE_MPS2
+                and lead_here.kin.longitudinal_m <= SLOW_LEADER_RANGE_M))
+        blocked = lead_here is not None and stopping \
             and lead_here.kin.longitudinal_m <= obs.agents.sensing_range_m \
             and not _queued_at_junction(scene, lead_here)
         slow = lead_here is not None and lead_here.kin.longitudinal_m <= SLOW_LEADER_RANGE_M \
@@ -732,6 +777,9 @@ class RulesBackend:
             # wait far enough behind the standing vehicle to steer round it later (a car
             # cannot reverse, and from a few metres the swerve is out of its steering reach)
             d_stop = lead_here.kin.gap_m - STANDOFF_M
+            if lead_here.agent.v_mps >= cfg.moving_speed_mps:  # braking: where it will stand
+                d_stop += lead_here.agent.v_mps ** 2 / (
+                    2.0 * max(-lead_here.agent.a_mps2, HARD_BRAKE_MPS2))
             if ego.v_mps < cfg.moving_speed_mps and d_stop > 8.0:
                 plan.accel_index = _mildest_accel(accel)  # creep up to the stand-off point
             else:
@@ -818,10 +866,19 @@ class RulesBackend:
             stop_gap = k.gap_m - STANDOFF_M
             if v.agent.v_mps >= cfg.moving_speed_mps:
                 stop_gap += v.agent.v_mps ** 2 / (2.0 * max(-v.agent.a_mps2, HARD_BRAKE_MPS2))
+            short = stand and ego.v_mps >= cfg.moving_speed_mps and \
+                stop_gap < ego.v_mps ** 2 / (2.0 * 2.0) + 1.5 * ego.v_mps
             if k.ttc_s is not None and k.ttc_s < limit:
                 threats.append(v)
-            elif stand and ego.v_mps >= cfg.moving_speed_mps and \
-                    stop_gap < ego.v_mps ** 2 / (2.0 * 2.0) + 1.5 * ego.v_mps:
+                if short:
+                    # closing in on a car braking hard: the constant-velocity TTC
+                    # underrates the braking needed (eoa seed 121 ended 4 m behind the
+                    # hazard, too close to steer round): brake for where it will stand
+                    # when that needs more
+                    need_ttc = k.closing_speed_mps ** 2 / (2.0 * max(k.gap_m - 2.0, 0.5))
+                    if ego.v_mps ** 2 / (2.0 * max(stop_gap, 0.5)) > need_ttc:
+                        standoff[v.id] = stop_gap
+            elif short:
                 threats.append(v)
                 standoff[v.id] = stop_gap
         if not threats:
@@ -855,6 +912,48 @@ class RulesBackend:
                 f"close in at {worst.kin.closing_speed_mps:.1f} m/s, so I brake to keep a safe "
                 "distance."
             )
+
+    def _headway_rule(
+        self, scene: Scene, plan: _Plan, accel: tuple[tuple[float, float], ...]
+    ) -> None:
+        """Behind a moving leader in the ego's lane keep a gap from which the ego can still
+        brake (or steer round it) if the leader brakes as hard as a car can
+        (``LEADER_BRAKE_MPS2``): the ego's stopping distance after a reaction time, minus
+        the leader's, plus ``STANDOFF_M`` to steer round it; at least ``HEADWAY_S`` of
+        time gap. The MPC follows at its own (1 s) headway; too close, the rules brake
+        gently (the mildest braking interval) until the gap has opened, and hold the
+        speed while it is only a little short."""
+        ego = scene.obs.ego
+        v = ego.v_mps
+        if v < HEADWAY_MIN_SPEED_MPS:
+            return
+        changing = plan.ego_index is not None and \
+            scene.ego_candidates[plan.ego_index].label.startswith("change to the")
+        if changing:
+            return  # the leader of the lane being left does not matter
+        leader = _lane_leader(scene)
+        if leader is None or leader.agent.v_mps < self.config.moving_speed_mps:
+            return  # standing: the stand-off rules (path, go) handle it
+        vl = leader.agent.v_mps
+        want = max(HEADWAY_S * v, v * HEADWAY_REACTION_S + v * v / (2.0 * EGO_BRAKE_MPS2)
+                   - vl * vl / (2.0 * LEADER_BRAKE_MPS2) + STANDOFF_M)
+        gap = leader.kin.gap_m
+        if gap >= want:
+            return
+        plan.attend(leader, "leader in my lane")
+        plan.speed_set = True
+        plan.weights["action"] = "high"
+        if gap < HEADWAY_OPEN_FRACTION * want and v > vl - 1.0:
+            plan.accel_index = _brake_index(accel, 0.5, False)
+            plan.notes.append(
+                f"{leader.id} drives {gap:.0f} m ahead in my lane at {vl:.1f} m/s; I drop "
+                f"back to about {want:.0f} m so I can still brake or steer round it if it "
+                "brakes hard.")
+        else:
+            plan.accel_index = _neutral(accel)
+            plan.notes.append(
+                f"I follow {leader.id} ({gap:.0f} m ahead) and keep about {want:.0f} m, "
+                "enough to brake or steer round it if it brakes hard.")
 
     def _go(self, scene: Scene, plan: _Plan, accel: tuple[tuple[float, float], ...]) -> None:
         ego = scene.obs.ego
@@ -940,6 +1039,39 @@ def _other_lane(scene: Scene, view: AgentView) -> bool:
     lane = scene.lanes.get(view.agent.lane_id or "")
     return ego_lane is not None and lane is not None and lane.id != ego_lane.id \
         and lane.edge_id == ego_lane.edge_id
+
+
+def _lane_leader(scene: Scene) -> Optional[AgentView]:
+    """The nearest vehicle ahead in the ego's own lane (same lane id; driving along)."""
+    ego = scene.obs.ego
+    best: Optional[AgentView] = None
+    for v in scene.agents:
+        k = v.kin
+        if k.longitudinal_m <= 0.0 or abs(k.heading_rel_rad) > 0.5:
+            continue
+        same = v.agent.lane_id == ego.lane_id if (v.agent.lane_id and ego.lane_id) \
+            else abs(k.lateral_m) < 1.2
+        if same and abs(k.lateral_m) < 2.5 and (best is None or k.gap_m < best.kin.gap_m):
+            best = v
+    return best
+
+
+_QUEUE_BEHIND_M = 12.0
+"""A vehicle this close behind in the ego's lane, (nearly) stopped, is held up by it."""
+
+
+def _queued_behind(scene: Scene) -> Optional[AgentView]:
+    """A (nearly) stopped vehicle close behind a (nearly) stopped ego in its lane."""
+    ego = scene.obs.ego
+    if ego.v_mps > 2.0:
+        return None
+    for v in scene.agents:
+        k = v.kin
+        if k.longitudinal_m >= 0.0 or k.gap_m > _QUEUE_BEHIND_M or v.agent.v_mps > 2.0:
+            continue
+        if abs(k.heading_rel_rad) < _ALONG_RAD and abs(k.lateral_m) < 1.8:
+            return v
+    return None
 
 
 def _sentence(text: str) -> str:
