@@ -215,7 +215,8 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     ap.add_argument("--mock-script", type=Path, help="scripted decisions for --planner mock")
     ap.add_argument("--clock", choices=["sync", "realtime"], default="sync")
     ap.add_argument("--run-dir", type=Path,
-                    help="run folder (default runs/<scenario>-<seed>-<time>)")
+                    help="run folder (default runs/<scenario>-<seed>-<time>; with --scene "
+                         "runs/<scene file stem>-<time>)")
     ap.add_argument("--summary-json", type=Path, help="also write the summary here")
     ap.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID for this run (default: env)")
     ap.add_argument("--max-time-s", type=float, default=200.0, help="episode limit, sim seconds")
@@ -268,7 +269,11 @@ def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, 
 
 def run(args: argparse.Namespace) -> dict[str, object]:
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    run_dir = args.run_dir or Path("runs") / f"{args.scenario}-{args.seed}-{stamp}"
+    # a scene file names the folder by its stem (its checked `name` is not known before
+    # the build, and a failed build keeps its summary in this folder too)
+    label = Path(args.scene).name.split(".")[0] if args.scene is not None \
+        else f"{args.scenario}-{args.seed}"
+    run_dir = args.run_dir or Path("runs") / f"{label}-{stamp}"
     run_dir = run_dir.resolve()
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "episode.json").unlink(missing_ok=True)

@@ -92,3 +92,11 @@ def test_graph_bad_scene_fails_clearly(tmp_path: Path, domain_id: int) -> None:
     run = run_graph(tmp_path / "b", domain_id, "--scene", str(bad), "--quiet", timeout_s=60)
     assert run.returncode == 3 and "no edge 'nowhere'" in run.summary["detail"]
     assert run.summary["nodes"] == {}
+    # Without --run-dir the run folder is named after the scene file (was "usi-0-...").
+    cwd = tmp_path / "c"
+    cwd.mkdir()
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "run_graph.py"), "--scene",
+                           str(bad), "--quiet", "--domain-id", str(domain_id)],
+                          cwd=cwd, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 3
+    assert [p.name.rsplit("-", 2)[0] for p in (cwd / "runs").iterdir()] == ["bad"]
