@@ -1,13 +1,10 @@
 """What the planner knows about one observation, computed once and shared by the
 prompt generator, the rules backend, the safety floor and the emergency check.
 
-Plain Python + numpy, no ROS. Geometry here is a deliberate APPROXIMATION for
-decision making (the MPC does the exact safety work):
-- time to collision (TTC) extrapolates both vehicles at constant velocity along
-  their current headings; an agent counts as on a collision course when the miss
-  distance at closest approach is below half the summed widths (lengths, for
-  crossing traffic) plus a margin;
-- box gaps use each box's support (half extent) along the line of sight.
+Plain Python + numpy, no ROS. Gap, closing speed and time to collision come from
+:mod:`lmpc_mpc.closeness` (one definition, shared with the MPC's per-step safety
+floor): a deliberate APPROXIMATION for decision making (constant velocities, box
+supports along the line of sight); the MPC does the exact safety work.
 """
 from __future__ import annotations
 
@@ -16,6 +13,7 @@ from dataclasses import dataclass, replace
 from typing import Mapping, Optional, Sequence
 
 import numpy as np
+from lmpc_mpc.closeness import closeness, wrap_rad
 from lmpc_mpc.reference import Candidate, candidates_for_pose, closest_heading, route_candidate
 
 from lmpc_msgs_py.messages import Agent, Lane
@@ -25,28 +23,11 @@ SAME_LANE_LATERAL_M = 1.8
 """|lateral offset| below which an agent counts as in the ego's lane (half a lane)."""
 SIDE_LONGITUDINAL_M = 3.0
 """|longitudinal offset| below which an agent counts as beside the ego."""
-MISS_MARGIN_M = 1.0
-"""Extra lateral clearance for the collision-course test."""
-MIN_CLOSING_MPS = 0.1
 ROUTE_CHANGE_PER_LANE_M = 60.0
 """Road kept per lane change still needed when the ego's lane does not lead on along
 its route: beyond lookahead + this per change, staying in lane counts as the route."""
 STRAIGHT_LINE_HORIZON_S = 5.0
 """Length (in time at the agent's speed) of the straight-line candidate of an off-map agent."""
-
-
-def wrap_rad(angle_rad: float) -> float:
-    """Wrap an angle to (-pi, pi]."""
-    a = math.fmod(angle_rad + math.pi, 2.0 * math.pi)
-    if a <= 0.0:
-        a += 2.0 * math.pi
-    return a - math.pi
-
-
-def _support_m(length_m: float, width_m: float, yaw_rad: float, dir_rad: float) -> float:
-    # Half extent of a box along the direction dir_rad.
-    th = dir_rad - yaw_rad
-    return 0.5 * length_m * abs(math.cos(th)) + 0.5 * width_m * abs(math.sin(th))
 
 
 @dataclass(frozen=True)
@@ -95,45 +76,20 @@ def agent_kinematics(obs: Observation) -> tuple[Kinematics, ...]:
     """Kinematics of every observed agent, nearest first (ties by id: deterministic)."""
     ego = obs.ego
     ce, se = math.cos(ego.yaw_rad), math.sin(ego.yaw_rad)
-    ve = np.array([ego.v_mps * ce, ego.v_mps * se])
     out = []
     for ag in obs.agents.agents:
-        p = np.array([ag.x_m - ego.x_m, ag.y_m - ego.y_m])
-        dist = float(np.hypot(*p))
-        va = np.array([ag.v_mps * math.cos(ag.yaw_rad), ag.v_mps * math.sin(ag.yaw_rad)])
-        vrel = va - ve
-        los = math.atan2(p[1], p[0]) if dist > 1e-9 else ego.yaw_rad
-        gap = max(
-            0.0,
-            dist
-            - _support_m(ego.length_m, ego.width_m, ego.yaw_rad, los)
-            - _support_m(ag.length_m, ag.width_m, ag.yaw_rad, los),
-        )
-        closing = float(-(p @ vrel) / dist) if dist > 1e-9 else 0.0
-        rel = wrap_rad(ag.yaw_rad - ego.yaw_rad)
-        ttc = None
-        vv = float(vrel @ vrel)
-        if closing > MIN_CLOSING_MPS and vv > 1e-9:
-            t_star = float(-(p @ vrel) / vv)
-            miss = float(np.hypot(*(p + vrel * t_star)))
-            crossing = abs(math.sin(rel))
-            radius = (
-                0.5 * (ego.width_m + ag.width_m)
-                + MISS_MARGIN_M
-                + 0.5 * crossing * max(0.0, ego.length_m + ag.length_m - ego.width_m - ag.width_m)
-            )
-            if miss < radius:
-                ttc = gap / closing
+        c = closeness(ego, ag)
+        dx, dy = ag.x_m - ego.x_m, ag.y_m - ego.y_m
         out.append(
             Kinematics(
                 agent=ag,
-                distance_m=dist,
-                gap_m=gap,
-                longitudinal_m=float(p[0] * ce + p[1] * se),
-                lateral_m=float(-p[0] * se + p[1] * ce),
-                heading_rel_rad=rel,
-                closing_speed_mps=closing,
-                ttc_s=ttc,
+                distance_m=c.distance_m,
+                gap_m=c.gap_m,
+                longitudinal_m=dx * ce + dy * se,
+                lateral_m=-dx * se + dy * ce,
+                heading_rel_rad=wrap_rad(ag.yaw_rad - ego.yaw_rad),
+                closing_speed_mps=c.closing_speed_mps,
+                ttc_s=c.ttc_s,
             )
         )
     out.sort(key=lambda k: (k.distance_m, k.agent.id))

@@ -199,6 +199,19 @@ class MpcConfig(BaseModel):
     """Side clearance between boxes; with the half-widths it scales the lateral axis [m]."""
     sensing_range_m: float = Field(80.0, gt=0.0, le=1000.0)
     """Agents within this distance are attended in baseline mode [m]."""
+    safety_floor_dist_m: float = Field(12.0, ge=0.0, le=200.0)
+    """Per-step safety floor: with a decision in force, an agent it does not attend that
+    is closer than this (centre to centre) is attended anyway, with the baseline
+    prediction. The planner applies the same floor when it decides; this one holds
+    between decisions, on the current observation (an agent the decision never saw, or
+    one that came close since) [m]."""
+    safety_floor_ttc_s: float = Field(4.0, ge=0.0, le=60.0)
+    """Per-step safety floor: the same for an agent whose time to collision
+    (``lmpc_mpc.closeness``) is below this [s]."""
+    safety_floor_hold_s: float = Field(3.0, ge=0.0, le=60.0)
+    """An agent the per-step floor added stays attended this long after it last met the
+    floor's test (sim time): the constant-velocity TTC of a car ahead vanishes while the
+    ego swerves round it, and dropping the car mid-swerve let the plan turn back into it [s]."""
     max_agents: int = Field(20, ge=0, le=100)
     """Most obstacle slots one problem holds (agents plus a red-light stop line); the
     nearest are kept."""

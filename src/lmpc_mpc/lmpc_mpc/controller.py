@@ -26,12 +26,15 @@ import numpy as np
 from lmpc_msgs_py.messages import Agent, Control, Decision, PosePoint
 from lmpc_msgs_py.observation import Observation
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
+from lmpc_mpc.closeness import closeness, must_attend
 from lmpc_mpc.config import MpcConfig
 from lmpc_mpc.prediction import baseline_candidate, forecast
 from lmpc_mpc.reference import (
     ReferencePathError,
     _Polyline,
     bezier_points,
+    candidates_for_pose,
+    closest_heading,
     lane_at,
     route_candidate,
     route_progress,
@@ -70,6 +73,8 @@ class ControllerStats:
     shifted: int
     brakes: int
     stale_inputs: int
+    floor_additions: int
+    """Agent-steps the per-step safety floor attended that the decision in force did not."""
     over_budget: int
     """Successful solves slower than ``time_budget_s`` (wall); failures only in realtime."""
     mode: str
@@ -128,12 +133,16 @@ class MpcController:
         self._plan_pred: Optional[np.ndarray] = None
         self._plan_age = 0
         self._counts = {"steps": 0, "solver_failures": 0, "fallbacks": 0, "shifted": 0,
-                        "brakes": 0, "stale_inputs": 0}
+                        "brakes": 0, "stale_inputs": 0, "floor_additions": 0}
         self._mode = "idle"
         self._solved_decision_id: Optional[str] = None
         self._ego_v_mps = 0.0
         self._now_s = 0.0
         self._committed: dict[str, float] = {}
+        self._floor_until: dict[str, float] = {}
+        self._curve: Optional[tuple[str, np.ndarray]] = None
+        """(decision id, its sampled and continued reference curve), see ``_decision_curve``."""
+        """Agent id -> sim time until which the per-step safety floor keeps it attended."""
         self._agent_curves: dict[str, tuple[float, Optional[str], _Points]] = {}
         """Agent id -> (sim time built, lane id then, control points) of the baseline
         prediction curve (see ``_CANDIDATE_REUSE_S``)."""
@@ -185,6 +194,8 @@ class MpcController:
         self._plan = self._plan_pred = None
         self._plan_age = 0
         self._committed.clear()
+        self._floor_until.clear()
+        self._curve = None
         self._agent_curves.clear()
         self._route_s = None
         self._solved_decision_id = None
@@ -257,7 +268,7 @@ class MpcController:
         ref_dec: Optional[float] = None
         ref_v_cap = veh.max_speed_mps
         if decision is not None:
-            pts = bezier_points(decision.ego_trajectory.control_points, 200)
+            pts = self._decision_curve(obs, decision)
             # the curve starts where the ego was when the planner looked: go on from
             # the closest point ahead of the ego now
             i = int(np.argmin(np.hypot(*(pts - ego_xy).T)))
@@ -443,12 +454,46 @@ class MpcController:
             limit[: k_last + 1] = np.minimum(limit[: k_last + 1], s_enter)
         return None if not np.any(np.isfinite(limit)) else limit
 
+    def _decision_curve(self, obs: Observation, decision: Decision) -> np.ndarray:
+        """The decision's reference curve, sampled, and continued past its end along the
+        lanes (the closest-heading candidate from its end pose), so that it covers the
+        horizon however far the ego drives while the decision is in force. Without the
+        continuation the reference ran straight on beyond the curve's ~60 m: off the road
+        on a bend once a decision had been in force a few seconds at speed (a 2.5 s
+        latency plus a 2.5 s cadence is 5 s, 70 m at 14 m/s). Built once per decision."""
+        if self._curve is not None and self._curve[0] == decision.decision_id:
+            return self._curve[1]
+        pts = bezier_points(decision.ego_trajectory.control_points, 200)
+        d = pts[-1] - pts[-2]
+        yaw = math.atan2(d[1], d[0])
+        cands = candidates_for_pose(obs.map, x_m=float(pts[-1, 0]), y_m=float(pts[-1, 1]),
+                                    yaw_rad=yaw, lane_id=None,
+                                    lookahead_m=self.config.lookahead_m)
+        pts = np.vstack([pts, closest_heading(cands, yaw).sample(200)[1:]])
+        self._curve = (decision.decision_id, pts)
+        return pts
+
     def _attended(self, obs: Observation, decision: Optional[Decision]) -> list[Agent]:
         ego = obs.ego
         seen = {a.id: a for a in obs.agents.agents}
         if decision is not None:
-            # ids the decision names but no longer observed are ignored
+            # ids the decision names but no longer observed are ignored; the safety floor
+            # adds whoever is close now, whatever the decision (made up to a TTL ago on
+            # an older observation) says: a weak planner can make the car slow, never blind
+            named = set(decision.attention)
             chosen = [seen[i] for i in decision.attention if i in seen]
+            cfg = self.config
+            for a in seen.values():
+                if a.id not in named and must_attend(
+                        closeness(ego, a), ttc_s=cfg.safety_floor_ttc_s,
+                        dist_m=cfg.safety_floor_dist_m):
+                    self._floor_until[a.id] = ego.stamp_s + cfg.safety_floor_hold_s
+            floor = [a for a in seen.values() if a.id not in named
+                     and self._floor_until.get(a.id, -math.inf) >= ego.stamp_s]
+            self._counts["floor_additions"] += len(floor)
+            chosen += floor
+            if len(self._floor_until) > 4 * max(len(seen), 8):
+                self._floor_until = {k: v for k, v in self._floor_until.items() if k in seen}
         else:
             chosen = [a for a in seen.values()
                       if math.hypot(a.x_m - ego.x_m, a.y_m - ego.y_m)

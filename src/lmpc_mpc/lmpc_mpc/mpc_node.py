@@ -268,6 +268,7 @@ class MpcNode(LmpcNode):
                                   "solver_failures": st.solver_failures,
                                   "fallbacks": st.fallbacks, "shifted": st.shifted,
                                   "brakes": st.brakes, "stale_inputs": st.stale_inputs,
+                                  "floor_additions": st.floor_additions,
                                   "over_budget": st.over_budget})
 
 

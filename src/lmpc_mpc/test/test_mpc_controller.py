@@ -7,6 +7,7 @@ import pytest
 
 from lmpc_msgs_py.messages import Agent, BezierTrajectory, Decision, WeightLevels
 from lmpc_mpc import synthetic as S
+from lmpc_mpc.closeness import closeness
 from lmpc_mpc.config import load_mpc_config
 from lmpc_mpc.controller import MpcController
 from lmpc_mpc.solver import MpcSolver, simulate_bicycle
@@ -237,3 +238,64 @@ def test_a_decision_taking_effect_or_expiring_makes_the_solver_reconverge() -> N
     # first solve (baseline), the decision at 0.5 s, its expiry at 2.0 s: nothing else
     assert switches == [0, 5, 20]
     assert counting.reconverged_at == switches[1:]  # the first solve is a cold start anyway
+
+
+def test_safety_floor_attends_a_close_agent_the_decision_left_out(solver: MpcSolver) -> None:
+    """A decision in force that attends nobody (a weak LLM; or made before the car was
+    there) must not blind the MPC: a standing car ahead in the lane is attended once its
+    TTC or distance is under the floor, and the ego stops behind it; a car in the other
+    lane far ahead, moving away, stays out of the problem. With the floor off, the same
+    run hits the car."""
+    m = S.straight_road()
+    stopped = S.agent("stopped", x_m=80.0, y_m=-4.8, yaw_rad=0.0, lane_id="E0_0")
+
+    def away(t: float) -> Agent:
+        return S.agent("away", x_m=60.0 + 14.0 * t, y_m=-1.6, yaw_rad=0.0, v_mps=14.0,
+                       lane_id="E0_1")
+
+    def drive(config) -> tuple[list, MpcController]:
+        solver.reset()
+        ctrl = MpcController(config, solver=solver)
+        keep = _decision((10.0, -4.8), stamp_s=0.0, ttl_s=30.0,
+                         accel_idx=CFG.neutral_accel_index, levels=WeightLevels())
+        ctrl.on_decision(keep.model_copy(update={"ego_trajectory": BezierTrajectory(
+            candidate_id=0, control_points=((10.0, -4.8), (100.0, -4.8), (190.0, -4.8)))}))
+        return _run(ctrl, m, (10.0, -4.8, 0.0, 10.0), 70, lambda t: [stopped, away(t)]), ctrl
+
+    def min_gap_m(log) -> float:
+        return min(closeness(S.ego_state(x_m=float(x[0]), y_m=float(x[1]),
+                                         yaw_rad=float(x[2]), v_mps=float(x[3])),
+                             stopped).gap_m for _, x, _ in log)
+
+    log, ctrl = drive(CFG)
+    # in force from t0 + dt to the end (shifted: a failed solve while braking hard)
+    assert all(c.mode in ("decision", "shifted") for _, _, c in log[1:])
+    assert "stopped" not in log[1][2].attended  # 70 m away at 10 m/s: TTC 6.5 s
+    assert all("away" not in c.attended for _, _, c in log[1:])
+    first = next(k for k, (_, _, c) in enumerate(log) if k > 0 and "stopped" in c.attended)
+    # once added it stays (held) until the ego is past it
+    assert all("stopped" in c.attended for _, x, c in log[first:] if x[0] < 80.0)
+    assert ctrl.stats().floor_additions > 0
+    assert min_gap_m(log) > 0.5 and log[-1][1][3] < 1.5
+    blind, ctrl = drive(CFG.model_copy(update={"safety_floor_dist_m": 0.0,
+                                               "safety_floor_ttc_s": 0.0}))
+    assert all(c.attended == () for _, _, c in blind[1:]) and ctrl.stats().floor_additions == 0
+    assert min_gap_m(blind) == 0.0
+
+
+def test_decision_curve_is_continued_along_the_lane(solver: MpcSolver) -> None:
+    """Past the end of a (short) decision curve the reference follows the lane, not the
+    ego's heading: the ego, 20 m beyond a 20 m curve and pointing 0.2 rad off the lane,
+    gets a reference that stays in its lane over the whole horizon."""
+    m = S.straight_road()
+    ctrl = _ctrl(solver)
+    short = _decision((10.0, -4.8), stamp_s=0.0, ttl_s=10.0,
+                      accel_idx=CFG.neutral_accel_index, levels=WeightLevels())
+    ctrl.on_decision(short.model_copy(update={"ego_trajectory": BezierTrajectory(
+        candidate_id=0, control_points=((10.0, -4.8), (20.0, -4.8), (30.0, -4.8)))}))
+    ego = S.ego_state(x_m=50.0, y_m=-4.8, yaw_rad=0.2, v_mps=12.0, stamp_s=1.0, seq=10)
+    ctl = ctrl.compute(S.observation(m, ego))
+    assert ctl.mode == "decision"
+    ref = ctrl.reference_states
+    assert ref[-1, 0] > 75.0  # it runs on ~30 m beyond the curve's end
+    assert np.all(np.abs(ref[5:, 1] + 4.8) < 0.5)  # in the lane, not along yaw 0.2
