@@ -362,7 +362,8 @@ class PlannerCore:
             meta = self._next_meta(scene, source=self.backend.name, mode=mode,
                                    latency_s=latency_s, tokens_in=tokens_in,
                                    tokens_out=tokens_out)
-            decision = translate(wire, scene=scene, mpc_config=self.mpc_config, meta=meta)
+            decision = translate(wire, scene=scene, mpc_config=self.mpc_config, meta=meta,
+                                 previous=self.last_decision)
         floor = apply_safety_floor(
             decision, scene=scene, ttc_s=self.config.safety_floor_ttc_s,
             dist_m=self.config.safety_floor_dist_m, lookahead_m=self.config.lookahead_m,

@@ -20,7 +20,8 @@ from dataclasses import dataclass
 from typing import Any, Literal, Optional, Sequence
 
 from lmpc_mpc.config import MpcConfig
-from lmpc_mpc.reference import Candidate, closest_heading
+import numpy as np
+from lmpc_mpc.reference import Candidate, bezier_points, closest_heading
 from pydantic import ValidationError
 
 from lmpc_msgs_py.messages import AgentPrediction, BezierTrajectory, Decision, WeightLevels
@@ -222,22 +223,35 @@ def to_trajectory(cand: Candidate, candidate_id: int) -> BezierTrajectory:
     )
 
 
+KEEP_TRAJECTORY_OFF_M = 3.0
+"""An emergency answer keeps the previous decision's ego trajectory while the ego is
+within this distance of that curve."""
+
+
 def translate(
     wire: LlmDecision | EmergencyDecision,
     *,
     scene: Scene,
     mpc_config: MpcConfig,
     meta: DecisionMeta,
+    previous: Optional[Decision] = None,
 ) -> Decision:
     """Turn a validated wire decision into a ``Decision`` (indices -> numbers).
 
-    An emergency answer has no scenario encoding: the ego follows its route
-    candidate and every offered agent is attended with its closest-heading
-    prediction (the baseline observation).
+    An emergency answer has no scenario encoding (the paper's fast path skips that
+    stage): the ego keeps the trajectory of ``previous`` (the last decision) while it is
+    within ``KEEP_TRAJECTORY_OFF_M`` of that curve, else (and for a fallback, which
+    passes no ``previous``) it follows its route candidate; every offered agent is
+    attended with its closest-heading prediction (the baseline observation). Taking the
+    route candidate there pulled an ego that was half-way through a lane change back
+    towards the lane it left (eoa seed 3: it stopped across both lanes and was hit).
     """
     enc = getattr(wire, "scenario_encoding", None)
+    kept: Optional[BezierTrajectory] = None
     if enc is None:
         ego_idx = scene.route_candidate_id
+        if previous is not None and _near_curve(previous.ego_trajectory, scene):
+            kept = previous.ego_trajectory
         attention = list(scene.agent_ids)
         chosen: dict[str, int] = {}
     else:
@@ -266,7 +280,8 @@ def translate(
         tokens_in=meta.tokens_in,
         tokens_out=meta.tokens_out,
         ttl_s=meta.ttl_s,
-        ego_trajectory=to_trajectory(scene.ego_candidates[ego_idx], ego_idx),
+        ego_trajectory=kept if kept is not None else to_trajectory(
+            scene.ego_candidates[ego_idx], ego_idx),
         agent_predictions=tuple(predictions),
         attention=tuple(attention),
         accel_interval=guide.accel_interval,
@@ -276,6 +291,15 @@ def translate(
         weights=WeightLevels(**weights.model_dump()),
         reasoning=wire.reasoning[:8000],
     )
+
+
+def _near_curve(traj: BezierTrajectory, scene: Scene) -> bool:
+    """The ego is within ``KEEP_TRAJECTORY_OFF_M`` of the curve and not past its end."""
+    pts = bezier_points(traj.control_points, 100)
+    ego = scene.obs.ego
+    d = np.hypot(pts[:, 0] - ego.x_m, pts[:, 1] - ego.y_m)
+    i = int(np.argmin(d))
+    return bool(d[i] <= KEEP_TRAJECTORY_OFF_M and i < len(pts) - 1)
 
 
 @dataclass(frozen=True)

@@ -102,3 +102,37 @@ def test_safety_floor_adds_close_agent(left_turn_map, obs_factory, mpc_config):
     again = apply_safety_floor(res.decision, scene=scene, ttc_s=3.0, dist_m=10.0,
                                lookahead_m=60.0)
     assert again.added == () and again.decision == res.decision
+
+
+def _emergency_wire():
+    from lmpc_llm_planner.schema import EmergencyDecision
+
+    return EmergencyDecision.model_validate({
+        "reasoning": "brake",
+        "action_guidance": {"accel_interval": 0, "steer_interval": 2},
+        "weight_adjustment": {"tracking": "normal", "action": "normal", "smoothness": "normal",
+                              "safety": "high"},
+    })
+
+
+def test_emergency_keeps_the_previous_trajectory_while_on_it(scene, mpc_config):
+    """An emergency answer has no scenario encoding: it keeps the last decision's ego
+    trajectory (a lane change or turn under way is not pulled back to the route
+    candidate); with no previous decision, or once the ego is off that curve, the route
+    candidate; every offered agent is attended either way."""
+    other = next(i for i in range(len(scene.ego_candidates)) if i != scene.route_candidate_id)
+    before = translate(wire(ego=other, attention=[], trajectories={}, accel=3, steer=2),
+                       scene=scene, mpc_config=mpc_config, meta=META)
+    kept = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META,
+                     previous=before)
+    assert kept.ego_trajectory == before.ego_trajectory
+    assert set(kept.attention) == set(scene.agent_ids)
+    route = scene.ego_candidates[scene.route_candidate_id]
+    fresh = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META)
+    assert flat(fresh.ego_trajectory.control_points) == pytest.approx(flat(route.control_points))
+    far = before.model_copy(update={"ego_trajectory": before.ego_trajectory.model_copy(
+        update={"control_points": tuple((x + 10.0, y) for x, y in
+                                        before.ego_trajectory.control_points)})})
+    off = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META,
+                    previous=far)
+    assert off.ego_trajectory.candidate_id == scene.route_candidate_id
