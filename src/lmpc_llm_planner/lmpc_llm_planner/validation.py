@@ -225,7 +225,11 @@ def to_trajectory(cand: Candidate, candidate_id: int) -> BezierTrajectory:
 
 KEEP_TRAJECTORY_OFF_M = 3.0
 """An emergency answer keeps the previous decision's ego trajectory while the ego is
-within this distance of that curve."""
+within this distance of that curve ..."""
+KEEP_DEVIATION_M = 1.5
+"""... and that curve leaves the current route candidate by more than this (a lane
+change or swerve under way); a previous decision that followed the route gives way to
+the route candidate from the current pose."""
 
 
 def translate(
@@ -239,18 +243,20 @@ def translate(
     """Turn a validated wire decision into a ``Decision`` (indices -> numbers).
 
     An emergency answer has no scenario encoding (the paper's fast path skips that
-    stage): the ego keeps the trajectory of ``previous`` (the last decision) while it is
-    within ``KEEP_TRAJECTORY_OFF_M`` of that curve, else (and for a fallback, which
-    passes no ``previous``) it follows its route candidate; every offered agent is
-    attended with its closest-heading prediction (the baseline observation). Taking the
-    route candidate there pulled an ego that was half-way through a lane change back
-    towards the lane it left (eoa seed 3: it stopped across both lanes and was hit).
+    stage): the ego follows its route candidate, except that a deviation from the route
+    chosen by ``previous`` (the last decision: a lane change, a swerve) that the ego is
+    still on is kept (``_keeps_deviation``); a fallback passes no ``previous``. Every
+    offered agent is attended with its closest-heading prediction (the baseline
+    observation). Taking the route candidate mid-lane-change pulled the ego back towards
+    the lane it left (eoa seed 3: it stopped across both lanes and was hit); keeping a
+    route-following curve instead of the fresh route candidate made the ego take a
+    right turn too wide (examples/city.yaml).
     """
     enc = getattr(wire, "scenario_encoding", None)
     kept: Optional[BezierTrajectory] = None
     if enc is None:
         ego_idx = scene.route_candidate_id
-        if previous is not None and _near_curve(previous.ego_trajectory, scene):
+        if previous is not None and _keeps_deviation(previous.ego_trajectory, scene):
             kept = previous.ego_trajectory
         attention = list(scene.agent_ids)
         chosen: dict[str, int] = {}
@@ -293,13 +299,20 @@ def translate(
     )
 
 
-def _near_curve(traj: BezierTrajectory, scene: Scene) -> bool:
-    """The ego is within ``KEEP_TRAJECTORY_OFF_M`` of the curve and not past its end."""
+def _keeps_deviation(traj: BezierTrajectory, scene: Scene) -> bool:
+    """The ego is within ``KEEP_TRAJECTORY_OFF_M`` of the curve, not past its end, and
+    the curve's rest leaves the route candidate by more than ``KEEP_DEVIATION_M``."""
     pts = bezier_points(traj.control_points, 100)
     ego = scene.obs.ego
     d = np.hypot(pts[:, 0] - ego.x_m, pts[:, 1] - ego.y_m)
     i = int(np.argmin(d))
-    return bool(d[i] <= KEEP_TRAJECTORY_OFF_M and i < len(pts) - 1)
+    if d[i] > KEEP_TRAJECTORY_OFF_M or i >= len(pts) - 1 or not scene.ego_candidates:
+        return False
+    route = scene.ego_candidates[scene.route_candidate_id].sample(200)
+    rest = pts[i:]
+    off = np.min(np.hypot(rest[:, None, 0] - route[None, :, 0],
+                          rest[:, None, 1] - route[None, :, 1]), axis=1)
+    return bool(np.max(off) > KEEP_DEVIATION_M)
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from lmpc_msgs_py.codec import decode, encode
@@ -117,17 +118,19 @@ def _emergency_wire():
 
 def test_emergency_keeps_the_previous_trajectory_while_on_it(scene, mpc_config):
     """An emergency answer has no scenario encoding: it keeps the last decision's ego
-    trajectory (a lane change or turn under way is not pulled back to the route
-    candidate); with no previous decision, or once the ego is off that curve, the route
-    candidate; every offered agent is attended either way."""
-    other = next(i for i in range(len(scene.ego_candidates)) if i != scene.route_candidate_id)
+    trajectory where that left the route (a lane change or turn under way is not pulled
+    back to the route candidate); with no previous decision, once the ego is off that
+    curve, or when the previous decision followed the route, the route candidate from
+    the current pose; every offered agent is attended either way."""
+    route = scene.ego_candidates[scene.route_candidate_id]
+    other = next(i for i, c in enumerate(scene.ego_candidates)
+                 if float(np.max(np.hypot(*(c.sample(50) - route.sample(50)).T))) > 5.0)
     before = translate(wire(ego=other, attention=[], trajectories={}, accel=3, steer=2),
                        scene=scene, mpc_config=mpc_config, meta=META)
     kept = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META,
                      previous=before)
     assert kept.ego_trajectory == before.ego_trajectory
     assert set(kept.attention) == set(scene.agent_ids)
-    route = scene.ego_candidates[scene.route_candidate_id]
     fresh = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META)
     assert flat(fresh.ego_trajectory.control_points) == pytest.approx(flat(route.control_points))
     far = before.model_copy(update={"ego_trajectory": before.ego_trajectory.model_copy(
@@ -136,3 +139,11 @@ def test_emergency_keeps_the_previous_trajectory_while_on_it(scene, mpc_config):
     off = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META,
                     previous=far)
     assert off.ego_trajectory.candidate_id == scene.route_candidate_id
+    on_route = translate(wire(ego=scene.route_candidate_id, attention=[], trajectories={},
+                              accel=3, steer=2), scene=scene, mpc_config=mpc_config, meta=META)
+    moved = on_route.model_copy(update={"ego_trajectory": on_route.ego_trajectory.model_copy(
+        update={"control_points": tuple((x, y - 0.5) for x, y in
+                                        on_route.ego_trajectory.control_points)})})
+    again = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META,
+                      previous=moved)  # an older route-following curve: the fresh one wins
+    assert flat(again.ego_trajectory.control_points) == pytest.approx(flat(route.control_points))

@@ -37,6 +37,7 @@ from lmpc_mpc.reference import (
     closest_heading,
     lane_at,
     route_candidate,
+    route_path,
     route_progress,
     timed_reference,
 )
@@ -58,6 +59,10 @@ _REBUILDS_PER_STEP = 3
 """At most this many expired agent curves are rebuilt per step (the oldest first; new
 agents and curves older than twice ``_CANDIDATE_REUSE_S`` always), so agents seen
 together do not all expire in the same step (that made p99 spikes)."""
+_ON_ROUTE_M = 2.0
+_ON_ROUTE_RAD = math.radians(45.0)
+"""A decision curve ending this close to the route, heading along it, is continued along
+the route (``MpcController._decision_curve``)."""
 _COMMIT_HOLD_S = 6.0
 """Once the ego commits to pass ahead of a crossing agent, it keeps that commitment this
 long (sim time) while the agent stays a conflict, so it does not stop half-way."""
@@ -455,21 +460,34 @@ class MpcController:
         return None if not np.any(np.isfinite(limit)) else limit
 
     def _decision_curve(self, obs: Observation, decision: Decision) -> np.ndarray:
-        """The decision's reference curve, sampled, and continued past its end along the
-        lanes (the closest-heading candidate from its end pose), so that it covers the
-        horizon however far the ego drives while the decision is in force. Without the
-        continuation the reference ran straight on beyond the curve's ~60 m: off the road
-        on a bend once a decision had been in force a few seconds at speed (a 2.5 s
-        latency plus a 2.5 s cadence is 5 s, 70 m at 14 m/s). Built once per decision."""
+        """The decision's reference curve, sampled, and continued past its end so that
+        it covers the horizon however far the ego drives while the decision is in force:
+        along the ego's route where the curve ends on it, else along the lanes (the
+        closest-heading candidate from its end pose). Without the continuation the
+        reference ran straight on beyond the curve's ~60 m: off the road on a bend once a
+        decision had been in force a few seconds at speed (a 2.5 s latency plus a 2.5 s
+        cadence is 5 s, 70 m at 14 m/s); closest-heading alone took the straight branch
+        of a junction where the route turns (examples/city.yaml). Built once per
+        decision."""
         if self._curve is not None and self._curve[0] == decision.decision_id:
             return self._curve[1]
         pts = bezier_points(decision.ego_trajectory.control_points, 200)
         d = pts[-1] - pts[-2]
         yaw = math.atan2(d[1], d[0])
-        cands = candidates_for_pose(obs.map, x_m=float(pts[-1, 0]), y_m=float(pts[-1, 1]),
-                                    yaw_rad=yaw, lane_id=None,
-                                    lookahead_m=self.config.lookahead_m)
-        pts = np.vstack([pts, closest_heading(cands, yaw).sample(200)[1:]])
+        ex, ey = float(pts[-1, 0]), float(pts[-1, 1])
+        look = self.config.lookahead_m
+        route = route_path(obs.map)
+        more: Optional[np.ndarray] = None
+        if route is not None:
+            s, off, heading = route.line.project(ex, ey)
+            if off < _ON_ROUTE_M and abs(math.remainder(heading - yaw, 2.0 * math.pi)) \
+                    < _ON_ROUTE_RAD and s < route.line.length_m:
+                more = route.line.at(np.linspace(s, s + look, 121))
+        if more is None:
+            cands = candidates_for_pose(obs.map, x_m=ex, y_m=ey, yaw_rad=yaw, lane_id=None,
+                                        lookahead_m=look)
+            more = closest_heading(cands, yaw).sample(200)
+        pts = np.vstack([pts, more[1:]])
         self._curve = (decision.decision_id, pts)
         return pts
 
