@@ -115,6 +115,35 @@ def four_way_junction(*, arm_m: float = 100.0, speed_mps: float = 13.89,
         target=TargetArea(lane_ids=(out,), center=end, radius_m=10.0))
 
 
+def roundabout_entry(*, arm_m: float = 100.0, ring_m: float = 60.0,
+                     ring_speed_mps: float = 8.33) -> MapSnapshot:
+    """A roundabout entry, straightened: the ego comes from the south (``S_in_0``,
+    northbound at x=+1.6, yield line at y=-8) and turns right into the ring lane
+    ``R1_0`` (eastbound at y=-1.6); ring traffic comes along ``R0_0`` (eastbound at
+    y=-1.6, from x=-8-``ring_m``) and goes straight on into ``R1_0``. Ring lanes and
+    the junction lanes onto the ring are flagged ``roundabout``."""
+    h, b = 1.6, 8.0
+    ring = dict(speed_mps=ring_speed_mps)
+    lanes = tuple(ln.model_copy(update={"roundabout": True}) for ln in (
+        _lane(":J_0_0", _arc(b, -b, b - h, math.pi, math.pi / 2.0), internal=True,
+              successors=[LaneLink(to_lane="R1_0", direction="r")], **ring),
+        _lane(":J_1_0", _line(-b, -h, b, -h), internal=True,
+              successors=[LaneLink(to_lane="R1_0", direction="s")], **ring),
+        _lane("R0_0", _line(-b - ring_m, -h, -b, -h), **ring, successors=[
+            LaneLink(to_lane="R1_0", via_lane=":J_1_0", direction="s")]),
+        _lane("R1_0", _line(b, -h, b + ring_m, -h), **ring),
+    )) + (
+        _lane("S_in_0", _line(h, -arm_m, h, -b), successors=[
+            LaneLink(to_lane="R1_0", via_lane=":J_0_0", direction="r")]),
+    )
+    return MapSnapshot(
+        stamp_s=0.0, lanes=lanes,
+        stop_lines=(StopLine(lane_id="S_in_0", position=(h, -b), junction_id="J",
+                             signalized=False),),
+        ego_route=("S_in_0", ":J_0_0", "R1_0"),
+        target=TargetArea(lane_ids=("R1_0",), center=(b + ring_m - 10.0, -h), radius_m=5.0))
+
+
 def arc_road(*, radius_m: float = 30.0, speed_mps: float = 10.0) -> MapSnapshot:
     """A single lane ``A_0`` on a counter-clockwise half circle (a roundabout-like
     arc) around (0, radius), starting at the origin heading east, then ``B_0`` west."""

@@ -284,6 +284,9 @@ class RulesBackend:
                 + "); signals and limits still apply.")
         turn = self._left_turn_rule(scene, plan, accel, steer, safe_gap_s, previous_go,
                                     emergency, previous_stop)
+        if turn == "none":
+            turn = self._roundabout_rule(scene, plan, accel, safe_gap_s, previous_go,
+                                         emergency, previous_stop)
         if turn == "none" and not emergency:
             # an emergency answer has no scenario encoding (the MPC gets the route
             # candidate), so a lane change cannot be chosen there: only the speed rules run
@@ -482,6 +485,111 @@ class RulesBackend:
             f"{turn} turn, clear it briskly and keep a safe distance."
         )
         return "commit"
+
+    def _roundabout_rule(
+        self,
+        scene: Scene,
+        plan: _Plan,
+        accel: tuple[tuple[float, float], ...],
+        safe_gap_s: float,
+        previous_go: bool,
+        emergency: bool,
+        previous_stop: bool,
+    ) -> str:
+        """Rule 10 (entering a roundabout): traffic on the ring has priority. For each
+        agent on the ring upstream of the ring lane the ego enters (along the ring's lane
+        links, at most ``RING_LOOKBACK_M``), its time to that lane's start (the merge
+        point) at its speed against the ego's time until its rear has passed the merge
+        point (accelerating at the go interval up to ``turn_speed_mps``). A gap shorter
+        than ``safe_gap_s`` (hysteresis as the left turn) -> stop before the yield line,
+        "yield"; too close to stop comfortably -> "commit"; else "go". "none" when the
+        next junction on the route is not a roundabout entry. APPROXIMATION: the merge
+        point is the end of the entry's junction lane, not where the two junction lanes
+        meet inside the junction; ring traffic's intent (exit before the merge point or
+        not) is unknown, so every ring agent upstream counts."""
+        cfg = self.config
+        obs = scene.obs
+        man = next_maneuver(obs, scene.lanes, max_distance_m=cfg.junction_attention_m)
+        if man is None:
+            return "none"
+        approach = scene.lanes.get(man.approach_lane_id)
+        ring = scene.lanes.get(man.link.to_lane)
+        if approach is None or approach.roundabout or ring is None or not ring.roundabout:
+            return "none"
+        ego = obs.ego
+        half_len = 0.5 * ego.length_m
+        via = scene.lanes.get(man.link.via_lane) if man.link.via_lane else None
+        d_merge = man.dist_to_stop_line_m + (via.length_m if via is not None else 0.0)
+        go_accel = max(_mid(accel[_accel_index(accel, cfg.turn_accel_mps2)]),
+                       cfg.turn_accel_mps2)
+        conflicts: list[Conflict] = []
+        for view in scene.agents:
+            ag = view.agent
+            lane = scene.lanes.get(ag.lane_id or "")
+            if lane is None or not lane.roundabout:
+                continue
+            d = _ring_distance_m(scene.lanes, lane, ag.lane_pos_m, ring.id, RING_LOOKBACK_M)
+            if d is None:
+                continue
+            t_agent = max(d - 0.5 * ag.length_m - CLEAR_MARGIN_M, 0.0) / max(ag.v_mps, 0.5)
+            t_clear = travel_time_s(d_merge + half_len + 0.5 * ag.width_m + CLEAR_MARGIN_M,
+                                    v0_mps=ego.v_mps, accel_mps2=go_accel,
+                                    vmax_mps=ring.speed_limit_mps)
+            conflicts.append(Conflict(view, d_merge, t_agent, t_clear, 0.0))
+        for c in conflicts:
+            plan.attend(c.view, "on the roundabout, has priority at my entry")
+        margin = safe_gap_s - (cfg.go_hysteresis_s if previous_go else 0.0)
+        unsafe = [c for c in conflicts if c.gap_s < margin]
+        if not unsafe:
+            if conflicts:
+                plan.notes.append(
+                    f"I enter the roundabout; the gap in the ring traffic is "
+                    f"{min(c.gap_s for c in conflicts):.1f} s beyond my clearing time "
+                    f"(enough from {margin:.1f} s).")
+            if man.inside_junction or man.dist_to_stop_line_m < half_len + _GO_ZONE_M:
+                if conflicts:  # clear the merge point before the ring car arrives
+                    plan.accel_index = _accel_index(accel, cfg.turn_accel_mps2)
+                    plan.speed_set = True
+            else:
+                # approach slowly enough to stop at the yield line for ring traffic that
+                # shows up later (ent* cars join the ring from the arm before mine); from
+                # 12 m/s ten metres out the ego could only commit (rab seeds 19, 112).
+                # Far out keep the speed while a comfortable slow-down after the next
+                # decision is still possible (slowing from 70 m out cost seconds)
+                v, v_turn = ego.v_mps, cfg.approach_turn_speed_mps
+                d = man.dist_to_stop_line_m - half_len
+                if v <= v_turn or d - v * cfg.replan_s <= \
+                        (v * v - v_turn * v_turn) / (2.0 * cfg.commit_decel_mps2) + _GO_ZONE_M:
+                    self._approach_turn(man, v, plan, accel)
+            return "go"
+        worst = min(unsafe, key=lambda c: (c.gap_s, c.view.id))
+        v = ego.v_mps
+        d_stop = man.dist_to_stop_line_m - half_len - cfg.stop_margin_m
+        vmax_brake = max(-lo for lo, _ in accel) if previous_stop else cfg.commit_decel_mps2
+        need = _required_decel(v, d_stop, cfg.moving_speed_mps)
+        if man.inside_junction or need is None or need > vmax_brake:
+            plan.accel_index = _accel_index(accel, cfg.turn_accel_mps2)
+            plan.speed_set = True
+            plan.weights["safety"] = "high"
+            plan.notes.append(
+                f"I am too close to stop before the roundabout's yield line with "
+                f"{worst.view.id} coming; I enter briskly and keep a safe distance.")
+            return "commit"
+        plan.speed_set = True
+        plan.weights.update(action="high", safety="high")
+        reason = (f"I must give way to {worst.view.id} on the roundabout: it reaches my "
+                  f"entry in {worst.t_agent_s:.1f} s, I would need {worst.t_clear_s:.1f} s "
+                  f"to enter (gap {worst.gap_s:.1f} s, enough from {margin:.1f} s).")
+        if not emergency and v >= cfg.moving_speed_mps and \
+                d_stop - v * cfg.replan_s > v * v / (2.0 * cfg.commit_decel_mps2) + 5.0:
+            plan.accel_index = _neutral(accel)  # far: stopping now would stop well short
+            plan.notes.append(reason + f" I keep my speed for now and stop at the yield line "
+                              f"({d_stop:.0f} m) if the gap stays too small.")
+            return "yield"
+        plan.accel_index = _stop_index(accel, v, d_stop, None, cfg.moving_speed_mps)
+        plan.notes.append(reason + f" I stop at the yield line ({max(d_stop, 0.0):.0f} m) "
+                          "and wait for a gap.")
+        return "yield"
 
     def _approach_turn(
         self, man: Maneuver, v_mps: float, plan: _Plan, accel: tuple[tuple[float, float], ...]
@@ -1039,6 +1147,35 @@ def _other_lane(scene: Scene, view: AgentView) -> bool:
     lane = scene.lanes.get(view.agent.lane_id or "")
     return ego_lane is not None and lane is not None and lane.id != ego_lane.id \
         and lane.edge_id == ego_lane.edge_id
+
+
+RING_LOOKBACK_M = 60.0
+"""Ring traffic this far (along the ring) before the ego's merge point counts (rule 10)."""
+
+
+def _ring_distance_m(lanes: dict[str, Lane], start: Lane, pos_m: float, goal_id: str,
+                     max_m: float) -> Optional[float]:
+    """Distance along roundabout lanes from ``pos_m`` on ``start`` to the start of lane
+    ``goal_id`` (following lane links and their junction lanes), or None when it is not
+    reached within ``max_m`` (or ``start`` is ``goal_id``: past the merge point)."""
+    best: Optional[float] = None
+    frontier = [(max(start.length_m - pos_m, 0.0), start)]
+    seen: set[str] = set()
+    while frontier:
+        d, lane = frontier.pop()
+        if lane.id == goal_id or lane.id in seen or d > max_m:
+            continue
+        seen.add(lane.id)
+        for lk in lane.successors:
+            via = lanes.get(lk.via_lane) if lk.via_lane else None
+            dd = d + (via.length_m if via is not None else 0.0)
+            if lk.to_lane == goal_id:
+                best = dd if best is None else min(best, dd)
+                continue
+            nxt = lanes.get(lk.to_lane)
+            if nxt is not None and nxt.roundabout:
+                frontier.append((dd + nxt.length_m, nxt))  # distance to its end
+    return best if best is not None and best <= max_m else None
 
 
 def _lane_leader(scene: Scene) -> Optional[AgentView]:
