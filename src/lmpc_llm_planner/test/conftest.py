@@ -4,6 +4,8 @@ observations on it, and the packaged configs. No ROS, no SUMO."""
 from __future__ import annotations
 
 import math
+import sys
+from pathlib import Path
 from typing import Callable, Optional, Sequence
 
 import pytest
@@ -14,6 +16,8 @@ from lmpc_msgs_py.messages import Agent, MapSnapshot
 from lmpc_msgs_py.observation import Observation
 
 from lmpc_llm_planner.config import PlannerConfig, load_planner_config
+
+sys.path.insert(0, str(Path(__file__).parent))  # rules_kit.py, the rules tests' helpers
 
 NORTH = math.pi / 2.0
 SOUTH = -math.pi / 2.0
@@ -34,6 +38,12 @@ def planner_config() -> PlannerConfig:
 @pytest.fixture(scope="session")
 def left_turn_map() -> MapSnapshot:
     return syn.four_way_junction(arm_m=ARM_M, ego_turn="l")
+
+
+@pytest.fixture(scope="session")
+def road() -> MapSnapshot:
+    """The two-lane straight road of the lane / headway tests."""
+    return syn.straight_road(length_m=400.0)
 
 
 @pytest.fixture(scope="session")

@@ -6,55 +6,11 @@ from __future__ import annotations
 
 import math
 
-import pytest
 from lmpc_mpc import synthetic as syn
+from rules_kit import CAR_LENGTH_M, accel_mid, ask, car, road_obs
+from rules_kit import chosen_label as label
 
 from lmpc_msgs_py.messages import Agent
-
-from lmpc_llm_planner.backends.rules import RulesBackend
-from lmpc_llm_planner.planner import build_request
-from lmpc_llm_planner.scene import build_scene
-from lmpc_llm_planner.validation import parse_decision
-
-RIGHT_Y_M = -4.8
-LEFT_Y_M = -1.6
-CAR_LENGTH_M = 4.5
-
-
-@pytest.fixture(scope="module")
-def road():
-    return syn.straight_road(length_m=400.0)
-
-
-def car(aid: str, *, x_m: float, v_mps: float, left: bool = False, a_mps2: float = 0.0
-        ) -> Agent:
-    lane = "E0_1" if left else "E0_0"
-    y = LEFT_Y_M if left else RIGHT_Y_M
-    return syn.agent(aid, x_m=x_m, y_m=y, yaw_rad=0.0, v_mps=v_mps, lane_id=lane) \
-        .model_copy(update={"lane_pos_m": x_m + 2.25, "a_mps2": a_mps2})
-
-
-def road_obs(road, agents=(), *, x_m: float = 50.0, v_mps: float = 12.0):
-    ego = syn.ego_state(x_m=x_m, y_m=RIGHT_Y_M, yaw_rad=0.0, v_mps=v_mps, lane_id="E0_0") \
-        .model_copy(update={"lane_pos_m": x_m + 2.25})
-    return syn.observation(road, ego, agents)
-
-
-def ask(obs, planner_config, mpc_config):
-    scene = build_scene(obs, lookahead_m=60.0, max_agents=20)
-    req = build_request(scene, config=planner_config, mpc_config=mpc_config)
-    reply = RulesBackend(planner_config.rules).complete(req)
-    res = parse_decision(reply.text, request=req)
-    assert res.success, res.message  # the rules answer passes the same validation
-    return res.wire, scene
-
-
-def accel_mid(wire, mpc_config) -> float:
-    return 0.5 * sum(mpc_config.accel_intervals_mps2[wire.action_guidance.accel_interval])
-
-
-def label(wire, scene) -> str:
-    return scene.ego_candidates[wire.scenario_encoding.ego_trajectory].label
 
 
 # -- headway behind a moving leader -------------------------------------------------------------

@@ -5,52 +5,10 @@ conftest.py. No ROS, no SUMO."""
 from __future__ import annotations
 
 import pytest
-from lmpc_mpc import synthetic as syn
+from rules_kit import ask, car, chosen_label, road_obs
 
-from lmpc_msgs_py.messages import Agent
-
-from lmpc_llm_planner.backends.rules import RulesBackend, parse_instruction
-from lmpc_llm_planner.planner import build_request
+from lmpc_llm_planner.backends.rules import parse_instruction
 from lmpc_llm_planner.scene import build_scene
-from lmpc_llm_planner.validation import parse_decision
-
-RIGHT_Y_M = -4.8
-LEFT_Y_M = -1.6
-
-
-@pytest.fixture(scope="module")
-def road():
-    return syn.straight_road(length_m=400.0)
-
-
-def car(aid: str, *, x_m: float, v_mps: float, left: bool = False, a_mps2: float = 0.0
-        ) -> Agent:
-    lane = "E0_1" if left else "E0_0"
-    y = LEFT_Y_M if left else RIGHT_Y_M
-    return syn.agent(aid, x_m=x_m, y_m=y, yaw_rad=0.0, v_mps=v_mps, lane_id=lane) \
-        .model_copy(update={"lane_pos_m": x_m + 2.25, "a_mps2": a_mps2})
-
-
-def road_obs(road, agents=(), *, x_m: float = 50.0, v_mps: float = 12.0, left: bool = False):
-    lane = "E0_1" if left else "E0_0"
-    y = LEFT_Y_M if left else RIGHT_Y_M
-    ego = syn.ego_state(x_m=x_m, y_m=y, yaw_rad=0.0, v_mps=v_mps, lane_id=lane) \
-        .model_copy(update={"lane_pos_m": x_m + 2.25})
-    return syn.observation(road, ego, agents)
-
-
-def ask(obs, planner_config, mpc_config, instruction=None, mode="normal"):
-    scene = build_scene(obs, lookahead_m=60.0, max_agents=20)
-    req = build_request(scene, config=planner_config, mpc_config=mpc_config,
-                        instruction=instruction, mode=mode)
-    reply = RulesBackend(planner_config.rules).complete(req)
-    res = parse_decision(reply.text, request=req)
-    assert res.success, res.message  # the rules answer passes the same validation
-    return res.wire, scene
-
-
-def chosen_label(wire, scene) -> str:
-    return scene.ego_candidates[wire.scenario_encoding.ego_trajectory].label
 
 
 def mid(intervals, i):

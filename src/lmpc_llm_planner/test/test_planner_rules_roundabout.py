@@ -8,11 +8,8 @@ import math
 
 import pytest
 from lmpc_mpc import synthetic as syn
-
-from lmpc_llm_planner.backends.rules import RulesBackend
-from lmpc_llm_planner.planner import build_request
-from lmpc_llm_planner.scene import build_scene
-from lmpc_llm_planner.validation import parse_decision
+from rules_kit import accel_mid
+from rules_kit import ask as ask_rules
 
 NORTH = math.pi / 2.0
 RING_START_X_M = -68.0  # R0_0 starts here (ring_m 60, junction box 8)
@@ -31,12 +28,8 @@ def ring_car(aid: str, *, x_m: float, v_mps: float = 8.0):
 def ask(map_, agents, planner_config, mpc_config, *, ego_y_m: float, v_mps: float):
     ego = syn.ego_state(x_m=1.6, y_m=ego_y_m, yaw_rad=NORTH, v_mps=v_mps, lane_id="S_in_0") \
         .model_copy(update={"lane_pos_m": ego_y_m + 100.0})
-    scene = build_scene(syn.observation(map_, ego, agents), lookahead_m=60.0, max_agents=20)
-    req = build_request(scene, config=planner_config, mpc_config=mpc_config)
-    res = parse_decision(RulesBackend(planner_config.rules).complete(req).text, request=req)
-    assert res.success, res.message
-    w = res.wire
-    return 0.5 * sum(mpc_config.accel_intervals_mps2[w.action_guidance.accel_interval]), w
+    w, _ = ask_rules(syn.observation(map_, ego, agents), planner_config, mpc_config)
+    return accel_mid(w, mpc_config), w
 
 
 def test_ring_car_close_to_the_entry_makes_the_ego_stop_at_the_yield_line(
