@@ -19,6 +19,7 @@ import csv
 import json
 import math
 import os
+import re
 import statistics
 import sys
 import tempfile
@@ -214,6 +215,62 @@ def table_md(summary: dict[str, dict[str, dict[str, Any]]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+_LOG_NAME = re.compile(r"^(?P<family>.+)-(?P<seed>\d{3,})-(?P<method>lmpc-[a-z]+)\.jsonl$")
+
+
+def decision_stats(log_dir: Path) -> dict[str, dict[str, dict[str, Any]]]:
+    """Per family, method and decision mode, from the scenes' decision logs: decisions,
+    fallbacks, the share answered validly at the first attempt, the measured backend
+    latency (wall, median / p95 / max; a backend run with a fixed simulated latency
+    still logs the measured one) and the tokens in / out (median, max in)."""
+    groups: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
+    for path in sorted(Path(log_dir).glob("*.jsonl")):
+        m = _LOG_NAME.match(path.name)
+        if m is None:
+            continue
+        for line in path.read_text().splitlines():
+            if line.strip():
+                rec = json.loads(line)
+                groups.setdefault((m["family"], m["method"], rec.get("mode", "normal")),
+                                  []).append(rec)
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    for (family, method, mode), recs in sorted(groups.items()):
+        lat = [float(r["measured_latency_s"]) for r in recs if r.get("attempts")]
+        first_ok = [r for r in recs if r.get("attempts") and
+                    r["attempts"][0].get("error_kind") is None]
+        asked = [r for r in recs if r.get("attempts")]
+        fallbacks = sum(1 for r in recs if (r.get("decision") or {}).get("source") == "fallback")
+        tok_in = [int(r["tokens_in"]) for r in asked]
+        tok_out = [int(r["tokens_out"]) for r in asked]
+        out.setdefault(family, {}).setdefault(method, {})[mode] = {
+            "decisions": len(recs), "fallbacks": fallbacks,
+            "valid_first_answer": round(len(first_ok) / len(asked), 4) if asked else math.nan,
+            "latency_s_median": round(statistics.median(lat), 3) if lat else math.nan,
+            "latency_s_p95": round(percentile(lat, 0.95), 3),
+            "latency_s_max": round(max(lat), 3) if lat else math.nan,
+            "tokens_in_median": statistics.median(tok_in) if tok_in else math.nan,
+            "tokens_in_max": max(tok_in) if tok_in else math.nan,
+            "tokens_out_median": statistics.median(tok_out) if tok_out else math.nan,
+        }
+    return out
+
+
+def stats_md(stats: dict[str, dict[str, dict[str, Any]]]) -> str:
+    lines = ["| Scenario | Method | Mode | Decisions | Fallbacks | Valid 1st | Latency med / "
+             "p95 / max s | Tokens in med / max | Tokens out med |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for family, methods in stats.items():
+        for method, modes in methods.items():
+            for mode, a in modes.items():
+                lines.append(
+                    f"| {family.upper()} | {method} | {mode} | {a['decisions']} | "
+                    f"{a['fallbacks']} | {a['valid_first_answer']:.0%} | "
+                    f"{a['latency_s_median']:.2f} / {a['latency_s_p95']:.2f} / "
+                    f"{a['latency_s_max']:.2f} | {a['tokens_in_median']:.0f} / "
+                    f"{a['tokens_in_max']:.0f} | {a['tokens_out_median']:.0f} |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
@@ -227,7 +284,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--instruction", default=None, metavar="TEXT",
                     help="the user's instruction for the planner (e.g. 'drive conservatively'"
                          "); the mpc baseline ignores it")
+    ap.add_argument("--decision-stats", type=Path, metavar="DIR",
+                    help="only print the planner figures of a finished run folder "
+                         "(DIR/decisions/*.jsonl) and write DIR/decisions.md")
     args = ap.parse_args(argv)
+    if args.decision_stats is not None:
+        stats = decision_stats(args.decision_stats / "decisions")
+        text = stats_md(stats)
+        (args.decision_stats / "decisions.md").write_text(text)
+        print(text)
+        return 0
     families = [f.strip() for f in args.families.split(",") if f.strip()]
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     unknown = [m for m in methods if m not in METHODS]
@@ -273,13 +339,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         writer.writeheader()
         writer.writerows(rows)
     summary = aggregate(rows)
+    stats = decision_stats(Path(log_dir))
     (args.out / "summary.json").write_text(json.dumps(
-        {"families": summary, "wall_time_s": round(time.monotonic() - t0, 1),
+        {"families": summary, "planner": stats,
+         "wall_time_s": round(time.monotonic() - t0, 1),
          "workers": args.workers, "seeds": args.seeds, "instruction": args.instruction},
         indent=2))
     table = table_md(summary)
     (args.out / "table.md").write_text(table)
     print(table)
+    if stats:
+        (args.out / "decisions.md").write_text(stats_md(stats))
+        print(stats_md(stats))
     try:
         sys.path.insert(0, str(Path(__file__).resolve().parent))
         from render import plot_oc_bars
