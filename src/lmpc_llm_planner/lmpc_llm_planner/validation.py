@@ -21,6 +21,7 @@ from typing import Any, Literal, Optional, Sequence
 
 from lmpc_mpc.config import MpcConfig
 import numpy as np
+from lmpc_mpc.closeness import must_attend
 from lmpc_mpc.reference import Candidate, bezier_points, closest_heading
 from pydantic import ValidationError
 
@@ -338,8 +339,7 @@ def apply_safety_floor(
             continue
         if len(attended) >= MAX_ATTENTION:
             break  # the message holds at most 200; nearest first, so the closest are in
-        urgent = kin.ttc_s is not None and kin.ttc_s < ttc_s
-        if not (urgent or kin.distance_m < dist_m):
+        if not must_attend(kin.distance_m, kin.ttc_s, ttc_s=ttc_s, dist_m=dist_m):
             continue
         view = scene.agent(kin.agent.id)
         cands = view.candidates if view else agent_candidates(

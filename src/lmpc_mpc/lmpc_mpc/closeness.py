@@ -79,6 +79,8 @@ def closeness(ego: EgoState, agent: Agent) -> Closeness:
     return Closeness(distance_m=dist, gap_m=gap, closing_speed_mps=closing, ttc_s=ttc)
 
 
-def must_attend(c: Closeness, *, ttc_s: float, dist_m: float) -> bool:
-    """The safety floor's test: closer than ``dist_m`` (centres) or TTC below ``ttc_s``."""
-    return c.distance_m < dist_m or (c.ttc_s is not None and c.ttc_s < ttc_s)
+def must_attend(distance_m: float, ttc: Optional[float], *, ttc_s: float, dist_m: float
+                ) -> bool:
+    """The safety floor's test (planner and MPC): an agent closer than ``dist_m``
+    (centre to centre) or with a TTC below ``ttc_s`` is attended whatever a decision says."""
+    return distance_m < dist_m or (ttc is not None and ttc < ttc_s)

@@ -145,9 +145,9 @@ class MpcController:
         self._now_s = 0.0
         self._committed: dict[str, float] = {}
         self._floor_until: dict[str, float] = {}
+        """Agent id -> sim time until which the per-step safety floor keeps it attended."""
         self._curve: Optional[tuple[str, np.ndarray]] = None
         """(decision id, its sampled and continued reference curve), see ``_decision_curve``."""
-        """Agent id -> sim time until which the per-step safety floor keeps it attended."""
         self._agent_curves: dict[str, tuple[float, Optional[str], _Points]] = {}
         """Agent id -> (sim time built, lane id then, control points) of the baseline
         prediction curve (see ``_CANDIDATE_REUSE_S``)."""
@@ -502,9 +502,10 @@ class MpcController:
             chosen = [seen[i] for i in decision.attention if i in seen]
             cfg = self.config
             for a in seen.values():
-                if a.id not in named and must_attend(
-                        closeness(ego, a), ttc_s=cfg.safety_floor_ttc_s,
-                        dist_m=cfg.safety_floor_dist_m):
+                c = closeness(ego, a) if a.id not in named else None
+                if c is not None and must_attend(c.distance_m, c.ttc_s,
+                                                 ttc_s=cfg.safety_floor_ttc_s,
+                                                 dist_m=cfg.safety_floor_dist_m):
                     self._floor_until[a.id] = ego.stamp_s + cfg.safety_floor_hold_s
             floor = [a for a in seen.values() if a.id not in named
                      and self._floor_until.get(a.id, -math.inf) >= ego.stamp_s]
