@@ -19,9 +19,9 @@ import math
 from dataclasses import dataclass
 from typing import Any, Literal, Optional, Sequence
 
-from lmpc_mpc.config import MpcConfig
 import numpy as np
 from lmpc_mpc.closeness import must_attend
+from lmpc_mpc.config import MpcConfig
 from lmpc_mpc.reference import Candidate, bezier_points, closest_heading
 from pydantic import ValidationError
 
