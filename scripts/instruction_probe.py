@@ -92,6 +92,7 @@ def run_case(sim: Any, method: str, family: str, seed: int, max_time_s: float,
     return {
         "method": method, "family": family, "seed": seed, "instruction": instruction,
         "outcome": res.outcome, "collision": res.outcome == "collision",
+        "collided_with": res.record.collided_with, "end_s": steps[-1].t_s if steps else 0.0,
         "decisions": res.decisions, "fallbacks": res.fallbacks,
         "start_lane": start_lane,
         "left_start_lane_at_s": off.t_s if off else None,

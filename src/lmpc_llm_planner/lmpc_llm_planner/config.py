@@ -182,9 +182,14 @@ class PlannerConfig(_Frozen):
     emergency_min_interval_s: float = Field(default=0.5, gt=0.0, le=60.0)
     """Emergency requests come at most this often (simulated time)."""
     safety_floor_ttc_s: float = Field(default=4.0, ge=0.0, le=60.0)
-    """Agents with a time to collision below this stay attended whatever the backend says."""
+    """Agents closing in within this (gap / closing speed) stay attended whatever the
+    backend says (``lmpc_mpc.closeness.must_attend``; the MPC applies the same floor on
+    every step with its own copy of these numbers)."""
     safety_floor_dist_m: float = Field(default=12.0, ge=0.0, le=200.0)
-    """Agents closer than this (centre to centre) stay attended whatever the backend says."""
+    """Agents closer than this (centre to centre) plus ``safety_floor_reach_s`` of both
+    speeds stay attended whatever the backend says."""
+    safety_floor_reach_s: float = Field(default=3.0, ge=0.0, le=30.0)
+    """See ``safety_floor_dist_m`` (3 s: the MPC's horizon)."""
     deadline_s: float = Field(default=8.0, gt=0.0, le=600.0)
     """Wall time a backend call may take; a later reply is discarded (timeout)."""
     max_retries: int = Field(default=1, ge=0, le=5)

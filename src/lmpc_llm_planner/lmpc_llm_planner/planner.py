@@ -367,6 +367,7 @@ class PlannerCore:
         floor = apply_safety_floor(
             decision, scene=scene, ttc_s=self.config.safety_floor_ttc_s,
             dist_m=self.config.safety_floor_dist_m, lookahead_m=self.config.lookahead_m,
+            reach_s=self.config.safety_floor_reach_s,
         )
         decision = floor.decision
         self.counters.floor_additions += len(floor.added)

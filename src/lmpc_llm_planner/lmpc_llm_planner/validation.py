@@ -324,9 +324,12 @@ class FloorResult:
 
 
 def apply_safety_floor(
-    decision: Decision, *, scene: Scene, ttc_s: float, dist_m: float, lookahead_m: float
+    decision: Decision, *, scene: Scene, ttc_s: float, dist_m: float, lookahead_m: float,
+    reach_s: float = 0.0,
 ) -> FloorResult:
-    """Keep every agent with TTC < ``ttc_s`` or closer than ``dist_m`` attended.
+    """Keep every agent attended that ``lmpc_mpc.closeness.must_attend`` names: closer
+    than ``dist_m`` plus what it and the ego drive in ``reach_s``, or closing in within
+    ``ttc_s`` (range-rate TTC, no collision-course test).
 
     Added agents get their closest-heading prediction. This is the guard that holds
     whatever the backend says (an LLM may drop a car that matters).
@@ -339,7 +342,8 @@ def apply_safety_floor(
             continue
         if len(attended) >= MAX_ATTENTION:
             break  # the message holds at most 200; nearest first, so the closest are in
-        if not must_attend(kin.distance_m, kin.ttc_s, ttc_s=ttc_s, dist_m=dist_m):
+        if not must_attend(kin, ego_v_mps=scene.obs.ego.v_mps, agent_v_mps=kin.agent.v_mps,
+                           ttc_s=ttc_s, dist_m=dist_m, reach_s=reach_s):
             continue
         view = scene.agent(kin.agent.id)
         cands = view.candidates if view else agent_candidates(

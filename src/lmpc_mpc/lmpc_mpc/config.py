@@ -208,6 +208,10 @@ class MpcConfig(BaseModel):
     safety_floor_ttc_s: float = Field(4.0, ge=0.0, le=60.0)
     """Per-step safety floor: the same for an agent whose time to collision
     (``lmpc_mpc.closeness``) is below this [s]."""
+    safety_floor_reach_s: float = Field(3.0, ge=0.0, le=30.0)
+    """Per-step safety floor: also attended, an agent closer than ``safety_floor_dist_m``
+    plus what it and the ego can drive in this time (the horizon, 30 x 0.1 s: it could
+    reach the ego's plan) [s]. 0: distance and TTC only."""
     safety_floor_hold_s: float = Field(3.0, ge=0.0, le=60.0)
     """An agent the per-step floor added stays attended this long after it last met the
     floor's test (sim time): the constant-velocity TTC of a car ahead vanishes while the

@@ -502,10 +502,10 @@ class MpcController:
             chosen = [seen[i] for i in decision.attention if i in seen]
             cfg = self.config
             for a in seen.values():
-                c = closeness(ego, a) if a.id not in named else None
-                if c is not None and must_attend(c.distance_m, c.ttc_s,
-                                                 ttc_s=cfg.safety_floor_ttc_s,
-                                                 dist_m=cfg.safety_floor_dist_m):
+                if a.id not in named and must_attend(
+                        closeness(ego, a), ego_v_mps=ego.v_mps, agent_v_mps=a.v_mps,
+                        ttc_s=cfg.safety_floor_ttc_s, dist_m=cfg.safety_floor_dist_m,
+                        reach_s=cfg.safety_floor_reach_s):
                     self._floor_until[a.id] = ego.stamp_s + cfg.safety_floor_hold_s
             floor = [a for a in seen.values() if a.id not in named
                      and self._floor_until.get(a.id, -math.inf) >= ego.stamp_s]

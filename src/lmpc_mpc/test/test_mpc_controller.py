@@ -244,13 +244,13 @@ def test_safety_floor_attends_a_close_agent_the_decision_left_out(solver: MpcSol
     """A decision in force that attends nobody (a weak LLM; or made before the car was
     there) must not blind the MPC: a standing car ahead in the lane is attended once its
     TTC or distance is under the floor, and the ego stops behind it; a car in the other
-    lane far ahead, moving away, stays out of the problem. With the floor off, the same
-    run hits the car."""
+    lane far ahead, moving away, stays out of the problem (beyond what both drive in the
+    floor's 3 s reach). With the floor off, the same run hits the car."""
     m = S.straight_road()
     stopped = S.agent("stopped", x_m=80.0, y_m=-4.8, yaw_rad=0.0, lane_id="E0_0")
 
     def away(t: float) -> Agent:
-        return S.agent("away", x_m=60.0 + 14.0 * t, y_m=-1.6, yaw_rad=0.0, v_mps=14.0,
+        return S.agent("away", x_m=110.0 + 14.0 * t, y_m=-1.6, yaw_rad=0.0, v_mps=14.0,
                        lane_id="E0_1")
 
     def drive(config) -> tuple[list, MpcController]:
@@ -278,7 +278,8 @@ def test_safety_floor_attends_a_close_agent_the_decision_left_out(solver: MpcSol
     assert ctrl.stats().floor_additions > 0
     assert min_gap_m(log) > 0.5 and log[-1][1][3] < 1.5
     blind, ctrl = drive(CFG.model_copy(update={"safety_floor_dist_m": 0.0,
-                                               "safety_floor_ttc_s": 0.0}))
+                                               "safety_floor_ttc_s": 0.0,
+                                               "safety_floor_reach_s": 0.0}))
     assert all(c.attended == () for _, _, c in blind[1:]) and ctrl.stats().floor_additions == 0
     assert min_gap_m(blind) == 0.0
 
@@ -299,3 +300,22 @@ def test_decision_curve_is_continued_along_the_lane(solver: MpcSolver) -> None:
     ref = ctrl.reference_states
     assert ref[-1, 0] > 75.0  # it runs on ~30 m beyond the curve's end
     assert np.all(np.abs(ref[5:, 1] + 4.8) < 0.5)  # in the lane, not along yaw 0.2
+
+
+def test_safety_floor_reach_attends_a_car_keeping_pace_in_the_next_lane(
+        solver: MpcSolver) -> None:
+    """A car 25 m behind in the next lane at the ego's speed never closes in (no TTC), yet
+    it is where a lane change goes: within the floor's reach (12 m + 3 s of both speeds)
+    it is attended; with the reach off it is not."""
+    m = S.straight_road()
+    pacer = S.agent("pacer", x_m=25.0, y_m=-1.6, yaw_rad=0.0, v_mps=10.0, lane_id="E0_1")
+    ego = S.ego_state(x_m=50.0, y_m=-4.8, yaw_rad=0.0, v_mps=10.0, stamp_s=1.0, seq=10)
+    blind = _decision((50.0, -4.8), stamp_s=0.0, ttl_s=10.0,
+                      accel_idx=CFG.neutral_accel_index, levels=WeightLevels())
+    for reach_s, attended in ((3.0, True), (0.0, False)):
+        solver.reset()
+        ctrl = MpcController(CFG.model_copy(update={"safety_floor_reach_s": reach_s}),
+                             solver=solver)
+        ctrl.on_decision(blind)
+        ctl = ctrl.compute(S.observation(m, ego, [pacer]))
+        assert ctl.mode == "decision" and ("pacer" in ctl.attended) == attended
