@@ -1,10 +1,19 @@
 #!/usr/bin/env python3
 """Record the graph's topics to a rosbag2 file (MCAP storage) with the `rosbags` library.
 
-Subscribes to the known LanguageMPC topics at once (so nothing of step 0 is
-lost to discovery) and to any other topic that appears under ``/lmpc``; takes
-the serialized CDR bytes as they come (``raw=True``), so the bag holds exactly
-what went over DDS. ``ros2 bag info/play`` and Foxglove read the result.
+Subscribes to the known LanguageMPC topics at once and to any other topic that
+appears under ``/lmpc``; takes the serialized CDR bytes as they come (``raw=True``),
+so the bag holds exactly what went over DDS. ``ros2 bag info/play`` and Foxglove
+read the result.
+
+Nothing of step 0 is lost to discovery: with ``--expect TOPIC,...`` (run_graph.py
+names the producers' topics: the MPC's control, the planner's decision and status)
+the recorder subscribes to the ego state only once each of those topics has a
+publisher matched with its subscription. A sync-clock bridge counts the recorder
+among the ego-state subscribers it waits for before step 0 (``extra_subscribers``),
+so step 0 starts only when the recorder hears every producer. Endpoint matching is
+per pair of participants: the bridge seeing the MPC says nothing about the recorder
+seeing it.
 
     record.py --out runs/usi-0/bag          (stop with Ctrl-C / SIGINT: the bag is closed cleanly)
 """
@@ -54,18 +63,44 @@ def message_class(type_name: str) -> type:
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
+EXPECT_TIMEOUT_S = 60.0
+"""Wall seconds to wait for the expected producers before subscribing to the ego state
+anyway (a producer that never comes: the bridge then reports who is missing)."""
+
+
 class Recorder(Node):
-    def __init__(self, out: Path) -> None:
+    def __init__(self, out: Path, expect: Sequence[str] = ()) -> None:
         super().__init__("lmpc_recorder")
         self.typestore = get_typestore(Stores.ROS2_JAZZY)
         self.writer = Writer(out, storage_plugin=StoragePlugin.MCAP)
         self.writer.open()
         self.connections: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
+        self.subscriptions_by_topic: dict[str, Any] = {}
+        self.ego_topic = topics.topic(topics.EGO_STATE)
+        self.expect = list(expect)
+        self.expect_deadline = time.monotonic() + EXPECT_TIMEOUT_S
         for name, type_name in KNOWN_TOPICS.items():
-            self._subscribe(name, type_name)
+            if name != self.ego_topic or not self.expect:
+                self._subscribe(name, type_name)
         self.create_timer(0.5, self._discover)
+        if self.expect:
+            self.expect_timer = self.create_timer(0.02, self._check_expected)
         self.get_logger().info(f"recording to {out}")
+
+    def _check_expected(self) -> None:
+        missing = [t for t in self.expect
+                   if self.subscriptions_by_topic[t].get_publisher_count() < 1]
+        timed_out = time.monotonic() > self.expect_deadline
+        if missing and not timed_out:
+            return
+        if missing:
+            self.get_logger().warning(
+                f"no publisher matched on {', '.join(missing)} after {EXPECT_TIMEOUT_S:.0f} s: "
+                f"subscribing to {self.ego_topic} anyway")
+        self.destroy_timer(self.expect_timer)
+        self._subscribe(self.ego_topic, KNOWN_TOPICS[self.ego_topic])
+        self.get_logger().info(f"producers matched: subscribed to {self.ego_topic}")
 
     def _subscribe(self, name: str, type_name: str) -> None:
         if name in self.connections or type_name not in self.typestore.types:
@@ -79,7 +114,8 @@ class Recorder(Node):
             self.writer.write(self.connections[topic], time.time_ns(), data)
             self.counts[topic] += 1
 
-        self.create_subscription(message_class(type_name), name, on_raw, qos, raw=True)
+        self.subscriptions_by_topic[name] = self.create_subscription(
+            message_class(type_name), name, on_raw, qos, raw=True)
 
     def _discover(self) -> None:
         for name, types in self.get_topic_names_and_types():
@@ -96,11 +132,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--out", type=Path, required=True, help="bag folder (must not exist)")
+    ap.add_argument("--expect", default="",
+                    help="comma-separated topics whose publishers must be matched before the "
+                         "recorder subscribes to the ego state (the bridge's start signal)")
     args, ros_args = ap.parse_known_args(argv)
+    expect = [t for t in args.expect.split(",") if t]
+    unknown = sorted(set(expect) - set(KNOWN_TOPICS))
+    if unknown:
+        ap.error(f"--expect: not a recorded topic: {', '.join(unknown)}")
     rclpy.init(args=ros_args)
     node: Optional[Recorder] = None
     try:
-        node = Recorder(args.out)
+        node = Recorder(args.out, expect)
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

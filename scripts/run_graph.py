@@ -224,6 +224,10 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
                     help="stop everything after this many wall seconds")
     ap.add_argument("--record", action="store_true",
                     help="record every topic to <run-dir>/bag (rosbag2, MCAP storage)")
+    ap.add_argument("--extra-subscribers", type=int, default=0, metavar="N",
+                    help="sync clock: before step 0 also wait for N subscribers of "
+                         "/lmpc/ego_state besides the graph's own (your monitor; it should "
+                         "subscribe to the ego state once it hears the topics it watches)")
     ap.add_argument("--quiet", action="store_true", help="do not echo node logs")
     ap.add_argument("--instruction", metavar="TEXT",
                     help="the user's instruction (e.g. 'drive conservatively'), published on "
@@ -231,6 +235,8 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     args = ap.parse_args(argv)
     if args.planner == "mock" and args.mock_script is None:
         ap.error("--planner mock needs --mock-script FILE")
+    if args.extra_subscribers < 0:
+        ap.error(f"--extra-subscribers must be >= 0, got {args.extra_subscribers}")
     if args.instruction is not None and args.planner == "none":
         ap.error("--instruction needs a planner (the MPC baseline reads no instruction)")
     return args
@@ -246,8 +252,8 @@ def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, 
             "max_time_s": args.max_time_s, "run_dir": str(run_dir),
             # an LLM call may take its whole deadline (local model: tens of seconds)
             "planner_timeout_s": 180.0 if llm else 30.0,
-            # a recorder must hear step 0 as well
-            "extra_subscribers": 1 if args.record else 0,
+            # a recorder (and the user's own monitors) must hear step 0 as well
+            "extra_subscribers": int(args.record) + args.extra_subscribers,
         },
         # the wall-time budget of a solve is enforced only when the clock is real
         "mpc": {"use_sim_time": True, "clock_mode": args.clock},
@@ -299,8 +305,15 @@ def run(args: argparse.Namespace) -> dict[str, object]:
         bag = run_dir / "bag"
         if bag.exists():
             shutil.rmtree(bag)
-        recorder = graph.start("recorder", [sys.executable, str(SCRIPTS / "record.py"),
-                                            "--out", str(bag)])
+        from lmpc_msgs_py import topics
+
+        # the producers the recorder must hear before it lets the bridge start (record.py)
+        produced = [topics.CONTROL] + ([topics.DECISION, topics.PLANNER_STATUS]
+                                       if any(n in params for n in ("planner", "mock_llm"))
+                                       else [])
+        recorder = graph.start("recorder", [
+            sys.executable, str(SCRIPTS / "record.py"), "--out", str(bag),
+            "--expect", ",".join(topics.topic(t) for t in produced)])
         _wait_for_log(recorder, "recording to", timeout_s=30.0)
     order = list(params)
     if args.instruction:

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from graphkit import RUN_GRAPH
+from graphkit import RUN_GRAPH, read_episode
 
 pytestmark = pytest.mark.graph
 
@@ -26,8 +26,11 @@ def _stamp_s(header: Any) -> float:
 
 def test_mpc_paths_and_markers(tmp_path: Path, domain_id: int) -> None:
     rclpy = pytest.importorskip("rclpy")
-    from nav_msgs.msg import Odometry, Path as PathMsg
+    from nav_msgs.msg import Path as PathMsg
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import String
+
+    from lmpc_msgs_py import qos as lmpc_qos
     from visualization_msgs.msg import Marker, MarkerArray
 
     keep_all = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5000,
@@ -35,25 +38,27 @@ def test_mpc_paths_and_markers(tmp_path: Path, domain_id: int) -> None:
     rclpy.init()
     node = rclpy.create_node("mirror_test_observer")
     got: dict[str, list[Any]] = {name: [] for name in PATHS + MARKERS}
-    egos: list[Any] = []
-    for name in PATHS:
-        node.create_subscription(PathMsg, name, got[name].append, keep_all)
-    for name in MARKERS:
-        node.create_subscription(MarkerArray, name, got[name].append, keep_all)
-    # the ego from its Odometry mirror: a subscriber of /lmpc/ego_state would count as
-    # one of the participants the bridge waits for before step 0
-    node.create_subscription(Odometry, "/lmpc/ego/odom", egos.append, keep_all)
+    mirror_subs = [node.create_subscription(PathMsg, name, got[name].append, keep_all)
+                   for name in PATHS]
+    mirror_subs += [node.create_subscription(MarkerArray, name, got[name].append, keep_all)
+                    for name in MARKERS]
     seen: dict[str, list[str]] = {}
-    # the observer joins first (LOCALHOST discovery: docs/ARCHITECTURE.md)
+    # The observer joins first (LOCALHOST discovery: docs/ARCHITECTURE.md) and is one
+    # more participant the bridge waits for before step 0 (--extra-subscribers 1): it
+    # subscribes to the ego state once it has matched the MPC's four mirror publishers.
     graph = subprocess.Popen(
         [sys.executable, str(RUN_GRAPH), "--scenario", "usi", "--seed", "0", "--planner", "rules",
          "--clock", "sync", "--quiet", "--run-dir", str(tmp_path / "run"),
-         "--domain-id", str(domain_id)],
+         "--domain-id", str(domain_id), "--extra-subscribers", "1"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    ego_sub = None
     try:
         deadline = time.monotonic() + 120
         while graph.poll() is None and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.05)
+            if ego_sub is None and all(sub.get_publisher_count() >= 1 for sub in mirror_subs):
+                ego_sub = node.create_subscription(String, "/lmpc/ego_state",
+                                                   lambda _msg: None, lmpc_qos.STREAM)
             for name, types in node.get_topic_names_and_types():
                 seen[name] = types
         for _ in range(40):  # drain what is still queued
@@ -66,13 +71,16 @@ def test_mpc_paths_and_markers(tmp_path: Path, domain_id: int) -> None:
         rclpy.try_shutdown()
 
     assert graph.returncode == 0, out[-3000:]
+    assert ego_sub is not None, "the MPC's mirror publishers never matched"
     for name in PATHS:
         assert seen.get(name) == ["nav_msgs/msg/Path"], (name, seen.get(name))
     for name in MARKERS:
         assert seen.get(name) == ["visualization_msgs/msg/MarkerArray"], (name, seen.get(name))
-    assert egos
-    ego_at = sorted((_stamp_s(e.header), e.pose.pose.position.x, e.pose.pose.position.y)
-                    for e in egos)
+    # the ego from the bridge's per-step record (every step, whatever DDS delivered to
+    # this observer: it is no participant the bridge waits for before step 0)
+    ego_at = [(s["t_s"], s["x_m"], s["y_m"])
+              for s in read_episode(tmp_path / "run")["record"]["steps"]]
+    assert len(ego_at) > 20
 
     def near_ego(t_s: float, x: float, y: float, within_m: float) -> bool:
         # the ego within 0.3 s of the stamp (DDS does not order the topics)

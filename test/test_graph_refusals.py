@@ -1,10 +1,12 @@
 """Bad input sent as raw std_msgs/String to the running nodes is refused and counted
 (RELIABILITY.md, "Inputs that must be refused, with the node still running").
 
-One sync-clock episode (``si`` seed 0 for 35 s sim: the ego waits at a red light, so
-the episode lasts long enough; bridge, MPC, rules planner) carries every bad payload of
-every input topic; each subscriber's ``dropped:<topic>`` diagnostics counter must
-grow by exactly the number sent, and the episode must still run to its end.
+One realtime-clock episode (``si`` seed 0, up to 60 s: the ego waits at a red light;
+bridge, MPC, rules planner) carries every bad payload of every input topic. Realtime,
+not sync: the paced payloads take ~12 s of wall time, and a sync episode runs ~10x
+faster than real time (35 s sim ended before the decision payloads were sent). Each
+subscriber's ``dropped:<topic>`` diagnostics counter must grow by exactly the number
+sent, and the episode must still run to its end.
 LLM-output refusals (prose, fenced JSON, ...) are in test_graph_llm_faults.py.
 """
 from __future__ import annotations
@@ -97,9 +99,9 @@ def test_every_bad_input_is_dropped_counted_and_the_nodes_keep_serving(
     with NodeSet(run_dir, domain_id) as g, Probe(domain_id) as probe:
         for topic in SUBSCRIBERS:
             probe.listen(topic)
-        g.start("bridge", bridge_params(run_dir, clock_mode="sync", wait_for_planner=True,
-                                        scenario="si", seed=0, max_time_s=35.0))
-        g.start("mpc", {"use_sim_time": True, "clock_mode": "sync"})
+        g.start("bridge", bridge_params(run_dir, clock_mode="realtime", scenario="si",
+                                        seed=0, max_time_s=60.0))
+        g.start("mpc", {"use_sim_time": True, "clock_mode": "realtime"})
         g.start("planner", {"use_sim_time": True, "backend": "rules", "run_dir": str(run_dir)})
 
         def templates() -> dict[str, str]:
