@@ -20,6 +20,7 @@ import json
 import math
 import os
 import re
+import signal
 import statistics
 import sys
 import tempfile
@@ -316,10 +317,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         jobs = [(m, scene.family, scene.seed) for m in methods]
     rows: list[dict[str, Any]] = []
     t0 = time.monotonic()
-    with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
-        log_dir = str(args.out / "decisions")
+    log_dir = args.out / "decisions"
+    interrupted = False
+    # SIGTERM ends a run as Ctrl-C does: the finished scenes are written, not lost
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+    pool = ProcessPoolExecutor(max_workers=max(1, args.workers))
+    try:
         futures = {pool.submit(run_scene, m, f, s, work_dir, scene_file, args.instruction,
-                               log_dir): (m, f, s) for m, f, s in jobs}
+                               str(log_dir)): (m, f, s) for m, f, s in jobs}
         for fut in as_completed(futures):
             m, f, s = futures[fut]
             try:
@@ -327,25 +332,60 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             except Exception as exc:  # noqa: BLE001 - e.g. a worker process that died
                 row = error_row(m, f, s, f"{type(exc).__name__}: {exc}")
             rows.append(row)
+            write_rows(args.out / "results.csv", rows)  # a long run keeps every finished scene
             done = len(rows)
             elapsed = time.monotonic() - t0
             eta = elapsed / done * (len(jobs) - done)
             print(f"[{done}/{len(jobs)}] {f} seed {s} {m}: {row['outcome']} "
                   f"t={row['time_s']}s O.C.={row['overall_cost']} ({row['wall_s']}s wall) "
                   f"elapsed {elapsed:.0f}s ETA {eta:.0f}s", flush=True)
-    rows.sort(key=lambda r: (r["family"], r["method"], r["seed"]))
-    with open(args.out / "results.csv", "w", newline="") as fh:
+    except KeyboardInterrupt:
+        interrupted = True
+        print(f"benchmark: interrupted after {len(rows)} of {len(jobs)} scenes; writing "
+              f"those", file=sys.stderr, flush=True)
+        # the running scenes are abandoned: stop their workers (the executor has no
+        # public way to, and a worker may be minutes into an LLM episode)
+        for proc in list((getattr(pool, "_processes", None) or {}).values()):
+            proc.kill()
+    finally:
+        pool.shutdown(wait=not interrupted, cancel_futures=True)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    partial = {"scenes_done": len(rows), "scenes_planned": len(jobs)} if interrupted else None
+    write_outputs(args, rows, log_dir, time.monotonic() - t0, partial)
+    return 130 if interrupted else 0
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def write_rows(path: Path, rows: list[dict[str, Any]]) -> None:
+    """``results.csv``, rows sorted by family, method, seed (written anew, atomically)."""
+    ordered = sorted(rows, key=lambda r: (r["family"], r["method"], r["seed"]))
+    tmp = path.with_suffix(".csv.tmp")
+    with open(tmp, "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=COLUMNS)
         writer.writeheader()
-        writer.writerows(rows)
+        writer.writerows(ordered)
+    tmp.replace(path)
+
+
+def write_outputs(args: argparse.Namespace, rows: list[dict[str, Any]], log_dir: Path,
+                  wall_s: float, partial: Optional[dict[str, int]]) -> None:
+    """results.csv, summary.json, table.md, decisions.md and the bar chart of ``rows``;
+    ``partial``: how many of the planned scenes an interrupted run finished (recorded in
+    summary.json and table.md)."""
+    write_rows(args.out / "results.csv", rows)
     summary = aggregate(rows)
-    stats = decision_stats(Path(log_dir))
+    stats = decision_stats(log_dir) if log_dir.is_dir() else {}
     (args.out / "summary.json").write_text(json.dumps(
-        {"families": summary, "planner": stats,
-         "wall_time_s": round(time.monotonic() - t0, 1),
-         "workers": args.workers, "seeds": args.seeds, "instruction": args.instruction},
-        indent=2))
+        {"families": summary, "planner": stats, "wall_time_s": round(wall_s, 1),
+         "workers": args.workers, "seeds": args.seeds, "instruction": args.instruction,
+         "partial": partial}, indent=2))
     table = table_md(summary)
+    if partial is not None:
+        table = (f"PARTIAL: interrupted after {partial['scenes_done']} of "
+                 f"{partial['scenes_planned']} scenes.\n\n" + table)
     (args.out / "table.md").write_text(table)
     print(table)
     if stats:
@@ -358,9 +398,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         plot_oc_bars(summary, args.out / "oc_bars.png")
     except Exception as exc:  # noqa: BLE001 - a plotting problem must not lose the results
         print(f"bar chart not drawn: {type(exc).__name__}: {exc}", file=sys.stderr)
-    print(f"wrote {args.out}/results.csv, table.md, summary.json "
-          f"in {time.monotonic() - t0:.0f}s", flush=True)
-    return 0
+    print(f"wrote {args.out}/results.csv, table.md, summary.json in {wall_s:.0f}s", flush=True)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,61 @@
+"""An interrupted benchmark keeps what it finished: results.csv grows with every
+finished scene, and SIGTERM (or Ctrl-C) writes results.csv, summary.json and table.md
+of the finished scenes, marked partial, stops the workers and exits 130."""
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_sigterm_writes_the_finished_scenes_and_stops_the_workers(tmp_path: Path) -> None:
+    out = tmp_path / "bench"
+    proc = subprocess.Popen(
+        [sys.executable, str(REPO / "scripts" / "benchmark.py"), "--families", "usi",
+         "--seeds", "0-3", "--methods", "mpc", "--workers", "1", "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    lines: list[str] = []
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            lines.append(line)
+            if line.startswith("[1/4]"):
+                break
+        assert lines and lines[-1].startswith("[1/4]"), "".join(lines)
+        # written before the whole run ends
+        with open(out / "results.csv") as fh:
+            assert len(list(csv.DictReader(fh))) == 1
+        proc.send_signal(signal.SIGTERM)
+        rest, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    text = "".join(lines) + rest
+    assert proc.returncode == 130, text[-2000:]
+    assert "interrupted after" in text
+    finished = sum(line.startswith("[") and "/4]" in line for line in text.splitlines())
+    with open(out / "results.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == finished >= 1
+    assert all(r["family"] == "usi" and r["method"] == "mpc" for r in rows)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["partial"] == {"scenes_done": finished, "scenes_planned": 4}
+    assert summary["families"]["usi"]["mpc"]["scenes"] == finished
+    assert (out / "table.md").read_text().startswith(f"PARTIAL: interrupted after {finished} of 4")
+    # no worker left running in the benchmark's process group
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        raise AssertionError("a benchmark worker outlived the interrupted run")
