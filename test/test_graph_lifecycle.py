@@ -39,8 +39,12 @@ def _wait_for_line(proc: subprocess.Popen[str], needle: str, timeout_s: float) -
 
 
 def test_realtime_clock_runs_at_wall_speed(tmp_path: Path, domain_id: int) -> None:
-    run = run_graph(tmp_path, domain_id, "--scenario", "usi", "--seed", "0", "--planner", "none",
-                    "--clock", "realtime", "--quiet")
+    # With the rules planner: the MPC baseline goes into a short gap of the oncoming
+    # stream on this scene, and a realtime start (the ego brakes for the 0.1-0.3 s the
+    # MPC needs to join) shifts it enough to hit the oncoming car (one CI run did). The
+    # rules planner waits for a safe gap, so the outcome does not hinge on that timing.
+    run = run_graph(tmp_path, domain_id, "--scenario", "usi", "--seed", "0", "--planner",
+                    "rules", "--clock", "realtime", "--quiet")
     s = run.summary
     assert s["outcome"] == "reached", run.output[-3000:]
     assert s["collisions"] == 0
