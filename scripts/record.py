@@ -79,6 +79,7 @@ class Recorder(Node):
         self.subscriptions_by_topic: dict[str, Any] = {}
         self.ego_topic = topics.topic(topics.EGO_STATE)
         self.expect = list(expect)
+        self.waiting_for_producers = bool(self.expect)
         self.expect_deadline = time.monotonic() + EXPECT_TIMEOUT_S
         for name, type_name in KNOWN_TOPICS.items():
             if name != self.ego_topic or not self.expect:
@@ -99,6 +100,7 @@ class Recorder(Node):
                 f"no publisher matched on {', '.join(missing)} after {EXPECT_TIMEOUT_S:.0f} s: "
                 f"subscribing to {self.ego_topic} anyway")
         self.destroy_timer(self.expect_timer)
+        self.waiting_for_producers = False
         self._subscribe(self.ego_topic, KNOWN_TOPICS[self.ego_topic])
         self.get_logger().info(f"producers matched: subscribed to {self.ego_topic}")
 
@@ -119,6 +121,8 @@ class Recorder(Node):
 
     def _discover(self) -> None:
         for name, types in self.get_topic_names_and_types():
+            if name == self.ego_topic and self.waiting_for_producers:
+                continue  # the bridge's start signal: only once the producers matched
             if name.startswith(topics.ROOT) and types:
                 self._subscribe(name, types[0])
 
