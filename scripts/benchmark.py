@@ -377,7 +377,7 @@ def write_outputs(args: argparse.Namespace, rows: list[dict[str, Any]], log_dir:
     summary.json and table.md)."""
     write_rows(args.out / "results.csv", rows)
     summary = aggregate(rows)
-    stats = decision_stats(log_dir) if log_dir.is_dir() else {}
+    stats = decision_stats(log_dir)  # {} when no planner wrote a log
     (args.out / "summary.json").write_text(json.dumps(
         {"families": summary, "planner": stats, "wall_time_s": round(wall_s, 1),
          "workers": args.workers, "seeds": args.seeds, "instruction": args.instruction,
