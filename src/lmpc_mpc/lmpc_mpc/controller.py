@@ -23,11 +23,12 @@ from typing import Optional
 
 import numpy as np
 
-from lmpc_msgs_py.messages import Agent, Control, Decision, PosePoint
+from lmpc_msgs_py.messages import Agent, Control, Decision, EgoState, PosePoint
 from lmpc_msgs_py.observation import Observation
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
 from lmpc_mpc.closeness import closeness, must_attend
 from lmpc_mpc.config import MpcConfig
+from lmpc_mpc.mirrors import OWN_SUFFIX
 from lmpc_mpc.prediction import baseline_candidate, forecast
 from lmpc_mpc.reference import (
     ReferencePathError,
@@ -63,6 +64,9 @@ _ON_ROUTE_M = 2.0
 _ON_ROUTE_RAD = math.radians(45.0)
 """A decision curve ending this close to the route, heading along it, is continued along
 the route (``MpcController._decision_curve``)."""
+_HEDGE_APART_M = 0.5
+"""A close agent's own forecast is added beside the decision's prediction of it when the
+two are farther apart than this at some step (see ``MpcController._close``)."""
 _COMMIT_HOLD_S = 6.0
 """Once the ego commits to pass ahead of a crossing agent, it keeps that commitment this
 long (sim time) while the agent stays a conflict, so it does not stop half-way."""
@@ -80,6 +84,9 @@ class ControllerStats:
     stale_inputs: int
     floor_additions: int
     """Agent-steps the per-step safety floor attended that the decision in force did not."""
+    hedged: int
+    """Agent-steps a close agent was kept clear of along both the decision's prediction
+    and the MPC's own forecast (they differed by more than ``_HEDGE_APART_M``)."""
     over_budget: int
     """Successful solves slower than ``time_budget_s`` (wall); failures only in realtime."""
     mode: str
@@ -138,7 +145,8 @@ class MpcController:
         self._plan_pred: Optional[np.ndarray] = None
         self._plan_age = 0
         self._counts = {"steps": 0, "solver_failures": 0, "fallbacks": 0, "shifted": 0,
-                        "brakes": 0, "stale_inputs": 0, "floor_additions": 0}
+                        "brakes": 0, "stale_inputs": 0, "floor_additions": 0,
+                        "hedged": 0}
         self._mode = "idle"
         self._solved_decision_id: Optional[str] = None
         self._ego_v_mps = 0.0
@@ -315,17 +323,31 @@ class MpcController:
                  for p in (decision.agent_predictions if decision is not None else ())}
         self._rebuilds_left = _REBUILDS_PER_STEP
         # oldest curves get the rebuilds of this step
+        hedged = {a.id for a in agents[:slots] if a.id in preds and self._close(ego, a)}
         for ag in sorted(agents[:slots], key=lambda a: self._agent_curves.get(
                 a.id, (-math.inf,))[0]):
-            if ag.id not in preds and ag.v_mps >= 0.05:
+            if (ag.id not in preds or ag.id in hedged) and ag.v_mps >= 0.05:
                 self._baseline_curve(obs, ag)
+        speeds: list[float] = []
         for ag in agents[:slots]:
-            cps = preds.get(ag.id)
-            if cps is None and ag.v_mps >= 0.05:
-                cps = self._agent_curves[ag.id][2]
+            own = self._agent_curves[ag.id][2] if ag.v_mps >= 0.05 and (
+                ag.id not in preds or ag.id in hedged) else None
+            cps = preds.get(ag.id, own)
             fc = forecast(ag, cps, map_=obs.map, horizon=n, dt_s=cfg.dt_s,
                           lookahead_m=cfg.lookahead_m)
             obstacles.append(Obstacle(ag.id, fc.xy_m, ag.length_m, ag.width_m))
+            speeds.append(ag.v_mps)
+            if ag.id in hedged:
+                # a close agent is also kept clear of along the MPC's own forecast: the
+                # decision's prediction of it is one hypothesis, not a licence (a weak
+                # model's "the stopped car ahead changes lanes" let the ego drive into it)
+                mine = forecast(ag, own, map_=obs.map, horizon=n, dt_s=cfg.dt_s,
+                                lookahead_m=cfg.lookahead_m).xy_m
+                if float(np.max(np.hypot(*(mine - fc.xy_m).T))) > _HEDGE_APART_M:
+                    self._counts["hedged"] += 1
+                    obstacles.append(Obstacle(ag.id + OWN_SUFFIX, mine, ag.length_m,
+                                              ag.width_m))
+                    speeds.append(ag.v_mps)
         if len(self._agent_curves) > 4 * max(len(obs.agents.agents), 8):
             seen = {a.id for a in obs.agents.agents}
             self._agent_curves = {k: v for k, v in self._agent_curves.items() if k in seen}
@@ -336,7 +358,7 @@ class MpcController:
         coarse = _Polyline.of(np.vstack([path[:-1:3], path[-1:]])) if len(path) > 7 else line
         self._ego_v_mps = ego.v_mps
         self._now_s = ego.stamp_s
-        s_limit = self._lead_limits(coarse, obstacles, [a.v_mps for a in agents[:slots]])
+        s_limit = self._lead_limits(coarse, obstacles, speeds)
         ref = timed_reference(path, v0_mps=ego.v_mps, v_max_mps=min(v_limit, ref_v_cap),
                               a_max_mps2=ref_acc, a_dec_mps2=ref_dec,
                               a_lat_max_mps2=cfg.reference_lat_accel_mps2, horizon=n,
@@ -502,10 +524,7 @@ class MpcController:
             chosen = [seen[i] for i in decision.attention if i in seen]
             cfg = self.config
             for a in seen.values():
-                if a.id not in named and must_attend(
-                        closeness(ego, a), ego_v_mps=ego.v_mps, agent_v_mps=a.v_mps,
-                        ttc_s=cfg.safety_floor_ttc_s, dist_m=cfg.safety_floor_dist_m,
-                        reach_s=cfg.safety_floor_reach_s):
+                if a.id not in named and self._close(ego, a):
                     self._floor_until[a.id] = ego.stamp_s + cfg.safety_floor_hold_s
             floor = [a for a in seen.values() if a.id not in named
                      and self._floor_until.get(a.id, -math.inf) >= ego.stamp_s]
@@ -519,6 +538,15 @@ class MpcController:
                       <= self.config.sensing_range_m]
         chosen.sort(key=lambda a: math.hypot(a.x_m - ego.x_m, a.y_m - ego.y_m))
         return chosen
+
+    def _close(self, ego: EgoState, agent: Agent) -> bool:
+        """The safety floor's test now (``lmpc_mpc.closeness.must_attend``): such an agent
+        can reach the ego's plan within the horizon, so the MPC keeps clear of its own
+        forecast of it as well as of the decision's prediction (``_problem``)."""
+        cfg = self.config
+        return must_attend(closeness(ego, agent), ego_v_mps=ego.v_mps, agent_v_mps=agent.v_mps,
+                           ttc_s=cfg.safety_floor_ttc_s, dist_m=cfg.safety_floor_dist_m,
+                           reach_s=cfg.safety_floor_reach_s)
 
     def _stop_distance(self, obs: Observation) -> Optional[float]:
         """Arc length along the reference where the box centre must stop (red light)."""

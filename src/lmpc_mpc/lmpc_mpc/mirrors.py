@@ -8,7 +8,10 @@
 - ``AGENT_PREDICTION_MARKERS``: every observed agent's predicted positions over the
   horizon; attended agents (those in the MPC problem) orange with their real
   forecast, unattended ones blue with a constant-velocity straight line (display
-  only: an approximation, they are not predicted by the MPC at all).
+  only: an approximation, they are not predicted by the MPC at all); a close agent
+  the MPC also keeps clear of along its own forecast (``<id>#own`` in the controller's
+  ``agent_predictions``, see docs/lmpc_mpc.md) gets that second line in namespace
+  ``hedged``, purple.
 
 Topic names: ``lmpc_msgs_py.topics.CANDIDATE_MARKERS`` / ``AGENT_PREDICTION_MARKERS``.
 """
@@ -28,6 +31,9 @@ CHOSEN_RGBA: RGBA = (0.1, 0.9, 0.2, 1.0)
 OTHER_CANDIDATE_RGBA: RGBA = (0.6, 0.6, 0.6, 0.8)
 ATTENDED_RGBA: RGBA = (1.0, 0.55, 0.0, 1.0)
 UNATTENDED_RGBA: RGBA = (0.2, 0.4, 1.0, 0.6)
+HEDGED_RGBA: RGBA = (0.6, 0.2, 0.9, 1.0)
+OWN_SUFFIX = "#own"
+"""Key suffix of the MPC's own forecast of a hedged agent (``MpcController``)."""
 _CURVE_POINTS = 40
 
 
@@ -92,6 +98,10 @@ def agent_lines(agents: Sequence[Agent], predictions: Mapping[str, np.ndarray], 
         if pred is not None:
             out.append(MirrorLine("attended", i, np.asarray(pred, dtype=float)[:, :2],
                                   ATTENDED_RGBA, 0.3, ag.id))
+            own = predictions.get(ag.id + OWN_SUFFIX)
+            if own is not None:
+                out.append(MirrorLine("hedged", i, np.asarray(own, dtype=float)[:, :2],
+                                      HEDGED_RGBA, 0.3, ag.id))
             continue
         line = np.column_stack([ag.x_m + ag.v_mps * math.cos(ag.yaw_rad) * t,
                                 ag.y_m + ag.v_mps * math.sin(ag.yaw_rad) * t])

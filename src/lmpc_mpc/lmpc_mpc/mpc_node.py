@@ -269,6 +269,7 @@ class MpcNode(LmpcNode):
                                   "fallbacks": st.fallbacks, "shifted": st.shifted,
                                   "brakes": st.brakes, "stale_inputs": st.stale_inputs,
                                   "floor_additions": st.floor_additions,
+                                  "hedged": st.hedged,
                                   "over_budget": st.over_budget})
 
 

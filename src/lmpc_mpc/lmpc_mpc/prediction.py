@@ -51,18 +51,24 @@ def predict_along(control_points: Sequence[Sequence[float]], *, v_mps: float, ho
     ``start_xy_m``: where the agent is now; the forecast starts at the closest
     point of the curve to it (a decision's curve may be a few steps old)."""
     pts, cum = _sampled(tuple((float(p[0]), float(p[1])) for p in control_points))
+    tail = pts[-1] - pts[-2]
+    norm = float(np.hypot(*tail))
+    tail = tail / norm if norm > 1e-9 else np.zeros(2)
     s_start = 0.0
     if start_xy_m is not None:
-        s_start = float(cum[int(np.argmin(np.hypot(*(pts - np.asarray(start_xy_m)).T)))])
+        start = np.asarray(start_xy_m, dtype=float)
+        i = int(np.argmin(np.hypot(*(pts - start).T)))
+        s_start = float(cum[i])
+        if i == len(pts) - 1:
+            # an agent already past the curve's end (a decision a few seconds old) goes
+            # on from its projection onto the straight continuation, not from the end
+            s_start += max(0.0, float((start - pts[-1]) @ tail))
     s = s_start + np.arange(horizon + 1) * dt_s * max(0.0, float(v_mps))
     out = np.empty((horizon + 1, 2))
     out[:, 0] = np.interp(s, cum, pts[:, 0])
     out[:, 1] = np.interp(s, cum, pts[:, 1])
     beyond = s > cum[-1]
     if np.any(beyond):
-        tail = pts[-1] - pts[-2]
-        norm = float(np.hypot(*tail))
-        tail = tail / norm if norm > 1e-9 else np.zeros(2)
         out[beyond] = pts[-1] + (s[beyond, None] - cum[-1]) * tail
     return out
 

@@ -319,3 +319,50 @@ def test_safety_floor_reach_attends_a_car_keeping_pace_in_the_next_lane(
         ctrl.on_decision(blind)
         ctl = ctrl.compute(S.observation(m, ego, [pacer]))
         assert ctl.mode == "decision" and ("pacer" in ctl.attended) == attended
+
+
+def test_close_agent_is_kept_clear_of_along_the_mpc_forecast_too(
+        solver: MpcSolver, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A weak planner attends the slow car ahead (3 m/s) but predicts it to change to
+    the left lane (SmolLM2 on eoa). It stays in the ego's lane. The MPC keeps clear of
+    both the decision's prediction and its own lane-following forecast of a close agent,
+    so the ego slows behind it; taking the prediction at face value (hedge off) runs
+    into it."""
+    from lmpc_mpc import controller as C
+    from lmpc_msgs_py.messages import AgentPrediction
+
+    m = S.straight_road()
+
+    def slow(t: float) -> Agent:
+        return S.agent("slow", x_m=50.0 + 3.0 * t, y_m=-4.8, yaw_rad=0.0, v_mps=3.0,
+                       lane_id="E0_0")
+
+    leaves = AgentPrediction(agent_id="slow", trajectory=BezierTrajectory(
+        candidate_id=1, control_points=((50.0, -4.8), (56.0, -4.8), (58.0, -1.6),
+                                        (64.0, -1.6)), label="change to the left lane"))
+    keep = _decision((10.0, -4.8), stamp_s=0.0, ttl_s=30.0,
+                     accel_idx=CFG.neutral_accel_index, levels=WeightLevels())
+    keep = keep.model_copy(update={
+        "ego_trajectory": BezierTrajectory(candidate_id=0, control_points=(
+            (10.0, -4.8), (100.0, -4.8), (190.0, -4.8))),
+        "attention": ("slow",), "agent_predictions": (leaves,)})
+
+    def drive() -> tuple[list, MpcController]:
+        ctrl = _ctrl(solver)
+        ctrl.on_decision(keep)
+        return _run(ctrl, m, (10.0, -4.8, 0.0, 12.0), 80, lambda t: [slow(t)]), ctrl
+
+    def min_gap_m(log) -> float:
+        return min(closeness(S.ego_state(x_m=float(x[0]), y_m=float(x[1]),
+                                         yaw_rad=float(x[2]), v_mps=float(x[3])),
+                             slow(t + CFG.dt_s)).gap_m for t, x, _ in log)
+
+    log, ctrl = drive()
+    assert all(c.mode in ("decision", "shifted") for _, _, c in log[1:])
+    assert ctrl.stats().hedged > 0
+    assert "slow#own" in ctrl.agent_predictions
+    assert min_gap_m(log) > 1.0
+    monkeypatch.setattr(C, "_HEDGE_APART_M", math.inf)
+    blind, ctrl = drive()
+    assert ctrl.stats().hedged == 0
+    assert min_gap_m(blind) == 0.0

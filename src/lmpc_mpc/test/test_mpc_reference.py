@@ -85,3 +85,17 @@ def test_time_parameterize_progress_speed_limit_and_curves() -> None:
     assert np.all(step > 0.0)  # monotone progress
     assert np.all(np.diff(rows[:, 3]) <= 1.5 * 0.1 + 1e-9)
     assert rows[:, 3].max() <= math.sqrt(2.0 * 20.0) + 0.3  # curve cap, not 15 m/s
+
+
+def test_forecast_of_an_agent_past_its_curve_goes_on_from_where_it_is() -> None:
+    """A decision's curve of an agent is a few seconds old: an agent already 10 m past
+    its end is forecast on from its own position along the curve's continuation (it
+    started at the curve's end, 10 m behind the agent, before)."""
+    from lmpc_mpc.prediction import predict_along
+
+    cps = ((0.0, 0.0), (10.0, 0.0), (20.0, 5.0), (30.0, 5.0))
+    xy = predict_along(cps, v_mps=5.0, horizon=10, dt_s=0.1, start_xy_m=(40.0, 5.0))
+    assert xy[0] == pytest.approx((40.0, 5.0), abs=0.05)
+    assert xy[-1] == pytest.approx((45.0, 5.0), abs=0.1)
+    on = predict_along(cps, v_mps=5.0, horizon=10, dt_s=0.1, start_xy_m=(0.0, 0.0))
+    assert on[0] == pytest.approx((0.0, 0.0), abs=0.05)
