@@ -285,6 +285,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--instruction", default=None, metavar="TEXT",
                     help="the user's instruction for the planner (e.g. 'drive conservatively'"
                          "); the mpc baseline ignores it")
+    ap.add_argument("--resume", action="store_true",
+                    help="keep the rows of OUT/results.csv (an earlier, interrupted run of "
+                         "the same code) and run only the scenes it lacks; error rows are "
+                         "run again")
     ap.add_argument("--decision-stats", type=Path, metavar="DIR",
                     help="only print the planner figures of a finished run folder "
                          "(DIR/decisions/*.jsonl) and write DIR/decisions.md")
@@ -316,6 +320,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         scene_file = str(args.scene.resolve())
         jobs = [(m, scene.family, scene.seed) for m in methods]
     rows: list[dict[str, Any]] = []
+    if args.resume:
+        try:
+            rows = read_rows(args.out / "results.csv", set(jobs))
+        except (OSError, ValueError, KeyError) as exc:
+            print(f"benchmark: --resume: cannot read {args.out / 'results.csv'}: {exc}",
+                  file=sys.stderr)
+            return 2
+        done = {(r["method"], r["family"], r["seed"]) for r in rows}
+        jobs = [j for j in jobs if j not in done]
+        print(f"benchmark: --resume: {len(rows)} scene(s) kept from "
+              f"{args.out / 'results.csv'}, {len(jobs)} to run", flush=True)
+    kept = args.kept = len(rows)
     t0 = time.monotonic()
     log_dir = args.out / "decisions"
     interrupted = False
@@ -333,7 +349,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                 row = error_row(m, f, s, f"{type(exc).__name__}: {exc}")
             rows.append(row)
             write_rows(args.out / "results.csv", rows)  # a long run keeps every finished scene
-            done = len(rows)
+            done = len(rows) - kept
             elapsed = time.monotonic() - t0
             eta = elapsed / done * (len(jobs) - done)
             print(f"[{done}/{len(jobs)}] {f} seed {s} {m}: {row['outcome']} "
@@ -350,13 +366,42 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     finally:
         pool.shutdown(wait=not interrupted, cancel_futures=True)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    partial = {"scenes_done": len(rows), "scenes_planned": len(jobs)} if interrupted else None
+    partial = ({"scenes_done": len(rows), "scenes_planned": len(jobs) + kept}
+               if interrupted else None)
     write_outputs(args, rows, log_dir, time.monotonic() - t0, partial)
     return 130 if interrupted else 0
 
 
 def _raise_interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
+
+
+_INT_COLUMNS = ("seed", "collision", "fail", "decisions", "fallbacks", "steps")
+_TEXT_COLUMNS = ("family", "method", "outcome", "detail")
+
+
+def read_rows(path: Path, jobs: set[tuple[str, str, int]]) -> list[dict[str, Any]]:
+    """The rows of an earlier ``results.csv`` that belong to ``jobs`` ((method, family,
+    seed)) and did not end in ``error``, typed as ``run_scene`` returns them (a missing
+    file: none). Raises ``ValueError`` / ``KeyError`` naming a malformed row."""
+    if not path.exists():
+        return []
+    rows = []
+    with open(path, newline="") as fh:
+        for line, raw in enumerate(csv.DictReader(fh), start=2):
+            missing = [c for c in COLUMNS if c not in raw]
+            if missing:
+                raise KeyError(f"line {line}: no column(s) {missing}")
+            try:
+                row: dict[str, Any] = {
+                    c: raw[c] if c in _TEXT_COLUMNS
+                    else int(raw[c]) if c in _INT_COLUMNS else float(raw[c])
+                    for c in COLUMNS}
+            except ValueError as exc:
+                raise ValueError(f"line {line}: {exc}") from None
+            if row["outcome"] != "error" and (row["method"], row["family"], row["seed"]) in jobs:
+                rows.append(row)
+    return rows
 
 
 def write_rows(path: Path, rows: list[dict[str, Any]]) -> None:
@@ -381,7 +426,7 @@ def write_outputs(args: argparse.Namespace, rows: list[dict[str, Any]], log_dir:
     (args.out / "summary.json").write_text(json.dumps(
         {"families": summary, "planner": stats, "wall_time_s": round(wall_s, 1),
          "workers": args.workers, "seeds": args.seeds, "instruction": args.instruction,
-         "partial": partial}, indent=2))
+         "partial": partial, "resumed_rows": getattr(args, "kept", 0)}, indent=2))
     table = table_md(summary)
     if partial is not None:
         table = (f"PARTIAL: interrupted after {partial['scenes_done']} of "

@@ -1,6 +1,7 @@
 """An interrupted benchmark keeps what it finished: results.csv grows with every
 finished scene, and SIGTERM (or Ctrl-C) writes results.csv, summary.json and table.md
-of the finished scenes, marked partial, stops the workers and exits 130."""
+of the finished scenes, marked partial, stops the workers and exits 130; ``--resume``
+then runs only the scenes the interrupted run lacks."""
 from __future__ import annotations
 
 import csv
@@ -59,3 +60,31 @@ def test_sigterm_writes_the_finished_scenes_and_stops_the_workers(tmp_path: Path
         time.sleep(0.1)
     else:
         raise AssertionError("a benchmark worker outlived the interrupted run")
+    # --resume keeps the finished rows and runs only the rest
+    again = subprocess.run(
+        [sys.executable, str(REPO / "scripts" / "benchmark.py"), "--families", "usi",
+         "--seeds", "0-3", "--methods", "mpc", "--workers", "1", "--out", str(out),
+         "--resume"], capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert f"{finished} scene(s) kept" in again.stdout
+    ran = [line for line in again.stdout.splitlines() if line.startswith("[")]
+    assert len(ran) == 4 - finished and all(f"/{4 - finished}]" in line for line in ran)
+    with open(out / "results.csv") as fh:
+        resumed = list(csv.DictReader(fh))
+    assert sorted(int(r["seed"]) for r in resumed) == [0, 1, 2, 3]
+    assert [r for r in resumed if r["seed"] in {x["seed"] for x in rows}] == rows
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["partial"] is None and summary["resumed_rows"] == finished
+    assert summary["families"]["usi"]["mpc"]["scenes"] == 4
+
+
+def test_resume_names_a_malformed_results_file(tmp_path: Path) -> None:
+    out = tmp_path / "bench"
+    out.mkdir()
+    (out / "results.csv").write_text("family,seed\nusi,zero\n")
+    proc = subprocess.run(
+        [sys.executable, str(REPO / "scripts" / "benchmark.py"), "--families", "usi",
+         "--seeds", "0", "--methods", "mpc", "--out", str(out), "--resume"],
+        capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert "--resume: cannot read" in proc.stderr and "line 2" in proc.stderr
