@@ -153,6 +153,9 @@ class MpcController:
         self._now_s = 0.0
         self._committed: dict[str, float] = {}
         self._floor_until: dict[str, float] = {}
+        self._hedge_until: dict[str, float] = {}
+        """Agent id -> sim time until which its own forecast stays beside the decision's
+        prediction of it (see ``_problem``; held ``safety_floor_hold_s``)."""
         """Agent id -> sim time until which the per-step safety floor keeps it attended."""
         self._curve: Optional[tuple[str, np.ndarray]] = None
         """(decision id, its sampled and continued reference curve), see ``_decision_curve``."""
@@ -208,6 +211,7 @@ class MpcController:
         self._plan_age = 0
         self._committed.clear()
         self._floor_until.clear()
+        self._hedge_until.clear()
         self._curve = None
         self._agent_curves.clear()
         self._route_s = None
@@ -323,7 +327,9 @@ class MpcController:
                  for p in (decision.agent_predictions if decision is not None else ())}
         self._rebuilds_left = _REBUILDS_PER_STEP
         # oldest curves get the rebuilds of this step
-        hedged = {a.id for a in agents[:slots] if a.id in preds and self._close(ego, a)}
+        t = ego.stamp_s
+        hedged = {a.id for a in agents[:slots] if a.id in preds and (
+            self._close(ego, a) or self._hedge_until.get(a.id, -math.inf) >= t)}
         for ag in sorted(agents[:slots], key=lambda a: self._agent_curves.get(
                 a.id, (-math.inf,))[0]):
             if (ag.id not in preds or ag.id in hedged) and ag.v_mps >= 0.05:
@@ -344,6 +350,10 @@ class MpcController:
                 mine = forecast(ag, own, map_=obs.map, horizon=n, dt_s=cfg.dt_s,
                                 lookahead_m=cfg.lookahead_m).xy_m
                 if float(np.max(np.hypot(*(mine - fc.xy_m).T))) > _HEDGE_APART_M:
+                    # held like the floor: an obstacle flickering in and out of the
+                    # problem from step to step made the plan jump (a spider-net junction)
+                    self._hedge_until[ag.id] = t + cfg.safety_floor_hold_s
+                if self._hedge_until.get(ag.id, -math.inf) >= t:
                     self._counts["hedged"] += 1
                     obstacles.append(Obstacle(ag.id + OWN_SUFFIX, mine, ag.length_m,
                                               ag.width_m))
@@ -351,6 +361,7 @@ class MpcController:
         if len(self._agent_curves) > 4 * max(len(obs.agents.agents), 8):
             seen = {a.id for a in obs.agents.agents}
             self._agent_curves = {k: v for k, v in self._agent_curves.items() if k in seen}
+            self._hedge_until = {k: v for k, v in self._hedge_until.items() if k in seen}
         line = _Polyline.of(path)
         # the lead limits only ask "is the agent on our path, and where": a polyline
         # through every 3rd point (~1 m apart) is within ~2 cm of the curve and makes
