@@ -66,7 +66,7 @@ _ON_ROUTE_RAD = math.radians(45.0)
 the route (``MpcController._decision_curve``)."""
 _HEDGE_APART_M = 0.5
 """A close agent's own forecast is added beside the decision's prediction of it when the
-two are farther apart than this at some step (see ``MpcController._close``)."""
+two are farther apart than this at some step (see ``MpcController._problem``)."""
 _COMMIT_HOLD_S = 6.0
 """Once the ego commits to pass ahead of a crossing agent, it keeps that commitment this
 long (sim time) while the agent stays a conflict, so it does not stop half-way."""
@@ -86,7 +86,8 @@ class ControllerStats:
     """Agent-steps the per-step safety floor attended that the decision in force did not."""
     hedged: int
     """Agent-steps a close agent was kept clear of along both the decision's prediction
-    and the MPC's own forecast (they differed by more than ``_HEDGE_APART_M``)."""
+    and the MPC's own forecast (they differed by more than ``_HEDGE_APART_M`` within the
+    last ``safety_floor_hold_s``)."""
     over_budget: int
     """Successful solves slower than ``time_budget_s`` (wall); failures only in realtime."""
     mode: str
@@ -153,10 +154,10 @@ class MpcController:
         self._now_s = 0.0
         self._committed: dict[str, float] = {}
         self._floor_until: dict[str, float] = {}
-        self._hedge_until: dict[str, float] = {}
-        """Agent id -> sim time until which its own forecast stays beside the decision's
-        prediction of it (see ``_problem``; held ``safety_floor_hold_s``)."""
         """Agent id -> sim time until which the per-step safety floor keeps it attended."""
+        self._hedge_until: dict[str, float] = {}
+        """Agent id -> sim time until which the MPC's own forecast of it stays beside the
+        decision's prediction of it (see ``_problem``; held ``safety_floor_hold_s``)."""
         self._curve: Optional[tuple[str, np.ndarray]] = None
         """(decision id, its sampled and continued reference curve), see ``_decision_curve``."""
         self._agent_curves: dict[str, tuple[float, Optional[str], _Points]] = {}
@@ -326,10 +327,11 @@ class MpcController:
         preds = {p.agent_id: p.trajectory.control_points
                  for p in (decision.agent_predictions if decision is not None else ())}
         self._rebuilds_left = _REBUILDS_PER_STEP
-        # oldest curves get the rebuilds of this step
         t = ego.stamp_s
+        # close agents with a prediction get the MPC's own forecast too (or still do)
         hedged = {a.id for a in agents[:slots] if a.id in preds and (
             self._close(ego, a) or self._hedge_until.get(a.id, -math.inf) >= t)}
+        # oldest curves get the rebuilds of this step
         for ag in sorted(agents[:slots], key=lambda a: self._agent_curves.get(
                 a.id, (-math.inf,))[0]):
             if (ag.id not in preds or ag.id in hedged) and ag.v_mps >= 0.05:
