@@ -331,7 +331,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         jobs = [j for j in jobs if j not in done]
         print(f"benchmark: --resume: {len(rows)} scene(s) kept from "
               f"{args.out / 'results.csv'}, {len(jobs)} to run", flush=True)
-    kept = args.kept = len(rows)
+    kept = len(rows)
     t0 = time.monotonic()
     log_dir = args.out / "decisions"
     interrupted = False
@@ -368,7 +368,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
     partial = ({"scenes_done": len(rows), "scenes_planned": len(jobs) + kept}
                if interrupted else None)
-    write_outputs(args, rows, log_dir, time.monotonic() - t0, partial)
+    write_outputs(args, rows, log_dir, time.monotonic() - t0, partial, resumed=kept)
     return 130 if interrupted else 0
 
 
@@ -416,17 +416,17 @@ def write_rows(path: Path, rows: list[dict[str, Any]]) -> None:
 
 
 def write_outputs(args: argparse.Namespace, rows: list[dict[str, Any]], log_dir: Path,
-                  wall_s: float, partial: Optional[dict[str, int]]) -> None:
+                  wall_s: float, partial: Optional[dict[str, int]], resumed: int = 0) -> None:
     """results.csv, summary.json, table.md, decisions.md and the bar chart of ``rows``;
     ``partial``: how many of the planned scenes an interrupted run finished (recorded in
-    summary.json and table.md)."""
+    summary.json and table.md); ``resumed``: how many of ``rows`` an earlier run left."""
     write_rows(args.out / "results.csv", rows)
     summary = aggregate(rows)
     stats = decision_stats(log_dir)  # {} when no planner wrote a log
     (args.out / "summary.json").write_text(json.dumps(
         {"families": summary, "planner": stats, "wall_time_s": round(wall_s, 1),
          "workers": args.workers, "seeds": args.seeds, "instruction": args.instruction,
-         "partial": partial, "resumed_rows": getattr(args, "kept", 0)}, indent=2))
+         "partial": partial, "resumed_rows": resumed}, indent=2))
     table = table_md(summary)
     if partial is not None:
         table = (f"PARTIAL: interrupted after {partial['scenes_done']} of "
