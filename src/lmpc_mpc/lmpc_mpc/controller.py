@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Optional
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -96,6 +96,26 @@ class ControllerStats:
 _LEAD_IN_OFF_RAD = math.radians(60.0)
 _LEAD_IN_M = 6.0
 _LEAD_IN_RADIUS_M = 6.0
+
+
+def rebased_control_points(control_points: Sequence[Sequence[float]], x_m: float,
+                           y_m: float) -> np.ndarray:
+    """A decision curve's control points from where the ego is now: its position, then
+    the points from the closest one ahead of it on.
+
+    The first control point is where the ego was when the planner looked, a latency
+    (2.5 s, ~35 m at speed) before the decision takes effect. Left in, that long leg
+    weighs on the whole Bezier: a turn's curve bent early and cut the corner by ~0.8 m
+    into the oncoming lane (usi seed 13 of ``lmpc-local``: the ego stopped there and was
+    hit). With fewer than two points ahead the control points are kept as they are."""
+    cps = np.asarray(control_points, dtype=float)
+    here = np.array([x_m, y_m])
+    i = int(np.argmin(np.hypot(*(cps - here).T)))
+    if i + 1 < len(cps) and float(np.dot(cps[i] - here, cps[i + 1] - cps[i])) < 0.0:
+        i += 1  # the closest point is behind the ego: start from the next one
+    if i == 0 or len(cps) - i < 2:
+        return cps
+    return np.vstack([here, cps[i:]])
 
 
 def _lead_in(path: np.ndarray, x_m: float, y_m: float, yaw_rad: float) -> np.ndarray:
@@ -503,10 +523,12 @@ class MpcController:
         decision had been in force a few seconds at speed (a 2.5 s latency plus a 2.5 s
         cadence is 5 s, 70 m at 14 m/s); closest-heading alone took the straight branch
         of a junction where the route turns (examples/city.yaml). Built once per
-        decision."""
+        decision, when it takes effect, from the ego's pose then (``rebased_control_points``).
+        """
         if self._curve is not None and self._curve[0] == decision.decision_id:
             return self._curve[1]
-        pts = bezier_points(decision.ego_trajectory.control_points, 200)
+        pts = bezier_points(rebased_control_points(
+            decision.ego_trajectory.control_points, obs.ego.x_m, obs.ego.y_m), 200)
         d = pts[-1] - pts[-2]
         yaw = math.atan2(d[1], d[0])
         ex, ey = float(pts[-1, 0]), float(pts[-1, 1])

@@ -99,3 +99,34 @@ def test_forecast_of_an_agent_past_its_curve_goes_on_from_where_it_is() -> None:
     assert xy[-1] == pytest.approx((45.0, 5.0), abs=0.1)
     on = predict_along(cps, v_mps=5.0, horizon=10, dt_s=0.1, start_xy_m=(0.0, 0.0))
     assert on[0] == pytest.approx((0.0, 0.0), abs=0.05)
+
+
+def test_a_decision_curve_taking_effect_later_starts_from_the_ego_and_cuts_less() -> None:
+    """A turn candidate made 40-50 m before the junction takes effect 2.5 s later, the ego
+    10-15 m before it: rebased on the ego's position the curve keeps closer to the lane
+    through the turn than the stale one (whose long first leg bends it early)."""
+    from lmpc_mpc.controller import rebased_control_points
+
+    m = S.four_way_junction()
+    lanes = {ln.id: ln for ln in m.lanes}
+    for y_asked, y_now, gain_m in ((-40.0, -15.0, 0.08), (-50.0, -10.0, 0.3)):
+        cands = candidates_for_pose(m, x_m=1.6, y_m=y_asked, yaw_rad=math.pi / 2,
+                                    lane_id="S_in_0")
+        left = {c.label: c for c in cands}["turn left at the junction"]
+        centre = _Polyline.of(np.vstack([np.asarray(lanes[i].centerline)
+                                         for i in left.lane_ids]))
+        rebased = rebased_control_points(left.control_points, 1.6, y_now)
+        assert rebased[0] == pytest.approx((1.6, y_now))
+        assert rebased[-1] == pytest.approx(left.control_points[-1])
+
+        def dev(cps: object) -> float:
+            pts = bezier_points(cps, 400)
+            return max(centre.project(float(x), float(y))[1] for x, y in pts if y > y_now)
+
+        assert dev(rebased) < dev(left.control_points) - gain_m
+    # the ego still at the first control point, or past the last but one: kept as is;
+    # just past the first: the first is replaced by the ego's position
+    cps = ((0.0, 0.0), (10.0, 0.0), (20.0, 5.0))
+    assert np.allclose(rebased_control_points(cps, 0.0, 0.0), cps)
+    assert np.allclose(rebased_control_points(cps, 25.0, 5.0), cps)
+    assert np.allclose(rebased_control_points(cps, 0.5, 0.1), ((0.5, 0.1),) + cps[1:])
