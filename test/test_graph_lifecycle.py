@@ -16,11 +16,19 @@ from graphkit import RUN_GRAPH, graph_processes, run_graph
 pytestmark = pytest.mark.graph
 
 
+def _default_sigint() -> None:
+    # a shell starts background jobs with SIGINT ignored, and Python then leaves it so:
+    # run_graph would never see the Ctrl-C of test_ctrl_c_stops_every_node (a CI started
+    # with `.ci/run &` failed that way)
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(tmp_path: Path, domain_id: int, *extra: str) -> subprocess.Popen[str]:
     return subprocess.Popen(
         [sys.executable, str(RUN_GRAPH), "--run-dir", str(tmp_path / "run"), "--domain-id",
          str(domain_id), "--scenario", "usi", "--seed", "0", *extra],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        preexec_fn=_default_sigint,
     )
 
 
