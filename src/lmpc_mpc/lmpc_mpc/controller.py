@@ -105,9 +105,10 @@ def rebased_control_points(control_points: Sequence[Sequence[float]], x_m: float
 
     The first control point is where the ego was when the planner looked, a latency
     (2.5 s, ~35 m at speed) before the decision takes effect. Left in, that long leg
-    weighs on the whole Bezier: a turn's curve bent early and cut the corner by ~0.8 m
-    into the oncoming lane (usi seed 13 of ``lmpc-local``: the ego stopped there and was
-    hit). With fewer than two points ahead the control points are kept as they are."""
+    weighs on the whole Bezier: a turn's curve bent early and cut the corner (0.8 m left
+    of the approach lane's centre 3 m into the junction; usi seed 13 of ``lmpc-local``:
+    the ego stopped with its nose in the oncoming lane and was hit). With fewer than two
+    points ahead the control points are kept as they are."""
     cps = np.asarray(control_points, dtype=float)
     here = np.array([x_m, y_m])
     i = int(np.argmin(np.hypot(*(cps - here).T)))
