@@ -11,6 +11,13 @@ decision log in ``decisions/<family>-<seed>-<method>.jsonl``.
     benchmark.py --families usi --seeds 0-24 --methods mpc,lmpc-rules --out runs/bench
     benchmark.py --scene examples/city.yaml --methods mpc,lmpc-rules   # your own network
     benchmark.py --families lane --methods lmpc-rules --instruction "drive aggressively"
+    benchmark.py --families eoa --methods lmpc-replay --replay-from runs/bench_local  # repeat
+
+``lmpc-replay`` repeats a finished run's LLM decisions without the model: each scene
+answers from that run's decision log of the scene, matching prompts by hash, with the
+recorded method's planner settings (``--replay-of``, default ``lmpc-local``), and is
+compared with the recorded row. An exact repeat (every prompt found, same outcome, time
+and O.C.) shows the recorded row still holds on the code that replays it.
 """
 from __future__ import annotations
 
@@ -62,10 +69,13 @@ def percentile(values: Sequence[float], q: float) -> float:
 
 
 def make_planner(method: str, instruction: Optional[str] = None, *,
-                 log_path: Optional[Path] = None) -> Any:
+                 log_path: Optional[Path] = None, replay_log: Optional[Path] = None,
+                 replay_of: str = "lmpc-local") -> Any:
     """The planner core of ``method`` (None for the ``mpc`` baseline); ``instruction``
     reaches it as the user's text through ``PlannerCore.on_instruction``, as the node's
-    ``/lmpc/instruction`` subscription does; ``log_path``: its JSON-lines decision log."""
+    ``/lmpc/instruction`` subscription does; ``log_path``: its JSON-lines decision log.
+    ``lmpc-replay`` answers from ``replay_log`` (prompts matched by hash only) with the
+    planner settings of the method that recorded it, ``replay_of``."""
     if method == "mpc":
         return None
     from lmpc_llm_planner.backends import make_backend
@@ -74,10 +84,19 @@ def make_planner(method: str, instruction: Optional[str] = None, *,
     from lmpc_mpc.config import load_mpc_config
 
     backend_name = method.removeprefix("lmpc-")
+    overrides: dict[str, Any] = {"backend": backend_name}
+    settings_of = backend_name
+    if backend_name == "replay":
+        if replay_log is None:
+            raise ValueError("lmpc-replay needs the recorded decision log of the scene")
+        # Hash only: a prompt the recording never saw is a miss (and a fallback decision),
+        # never a look-alike answer, so "0 unmatched" means the decisions were the recorded ones.
+        overrides["replay"] = {"log_path": str(replay_log), "match": "hash"}
+        settings_of = replay_of.removeprefix("lmpc-")
     # The small local model needs its own config (a deadline it can meet on a small CPU,
     # a simulated latency: config/planner_local.yaml says why), or every call times out.
-    config = load_planner_config(LOCAL_CONFIG_PATH if backend_name == "local" else None,
-                                 overrides={"backend": backend_name})
+    config = load_planner_config(LOCAL_CONFIG_PATH if settings_of == "local" else None,
+                                 overrides=overrides)
     core = PlannerCore(config, make_backend(config), load_mpc_config(), log_path=log_path)
     if instruction:
         core.on_instruction(instruction)
@@ -101,17 +120,22 @@ class _SceneFileSim:
 def run_scene(method: str, family: str, seed: int, work_dir: str,
               scene_file: Optional[str] = None,
               instruction: Optional[str] = None,
-              log_dir: Optional[str] = None) -> dict[str, Any]:
+              log_dir: Optional[str] = None,
+              replay: Optional[tuple[str, str]] = None) -> dict[str, Any]:
     """One episode in this worker process; returns its results row.
 
     With ``scene_file`` the episode runs that scene description (``family`` and
     ``seed`` are then its name and SUMO seed, for the row). Anything that raises gives
     an ``error`` row with the reason (exceptions holding SUMO objects do not pickle).
     ``instruction``: the user's text for the planner (ignored by ``mpc``); ``log_dir``:
-    where the planner's decision log of the scene goes (``<family>-<seed>-<method>.jsonl``).
+    where the planner's decision log of the scene goes (``<family>-<seed>-<method>.jsonl``);
+    ``replay``: (run folder, recorded method) whose log of the scene ``lmpc-replay`` answers
+    from (the row then also carries ``replay_answered`` / ``replay_unmatched``, the prompts
+    found in the log and not, which ``results.csv`` does not keep).
     """
     try:
-        return _run_scene(method, family, seed, work_dir, scene_file, instruction, log_dir)
+        return _run_scene(method, family, seed, work_dir, scene_file, instruction, log_dir,
+                          replay)
     except Exception as exc:  # noqa: BLE001 - one broken scene must not end the run
         return error_row(method, family, seed, f"{type(exc).__name__}: {exc}")
 
@@ -125,7 +149,8 @@ def error_row(method: str, family: str, seed: int, detail: str) -> dict[str, Any
 
 def _run_scene(method: str, family: str, seed: int, work_dir: str,
                scene_file: Optional[str], instruction: Optional[str] = None,
-               log_dir: Optional[str] = None) -> dict[str, Any]:
+               log_dir: Optional[str] = None,
+               replay: Optional[tuple[str, str]] = None) -> dict[str, Any]:
     global _SIM, _SOLVER
     from lmpc_bridge.runner import run_episode
     from lmpc_bridge.sim import SumoSim
@@ -151,12 +176,20 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
         scene = build_external_scene(
             scene_file, work_dir=Path(work_dir) / f"worker-{os.getpid()}")
         sim, max_time_s = _SceneFileSim(_SIM, scene), scene.max_time_s
+    replay_log = None
+    if method == "lmpc-replay":
+        if replay is None:
+            raise ValueError("lmpc-replay needs --replay-from DIR (a finished run folder)")
+        replay_log = recorded_log_path(Path(replay[0]), family, seed, replay[1])
+        if not replay_log.is_file():
+            raise FileNotFoundError(f"no recorded decision log {replay_log}")
+    planner = make_planner(method, instruction, log_path=log_path, replay_log=replay_log,
+                           replay_of=replay[1] if replay else "lmpc-local")
     result = run_episode(sim, family=family, seed=seed,
                          controller=MpcController(config, solver=_SOLVER),
-                         planner=make_planner(method, instruction, log_path=log_path),
-                         max_time_s=max_time_s)
+                         planner=planner, max_time_s=max_time_s)
     m = result.metrics
-    return {
+    row = {
         "family": family, "seed": seed, "method": method, "outcome": result.outcome,
         "collision": int(result.outcome == "collision"),
         "fail": int(result.outcome in ("timeout", "error")),
@@ -172,6 +205,49 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
         "wall_s": round(time.perf_counter() - started, 2),
         "detail": result.detail,
     }
+    if replay_log is not None:
+        hits = planner.backend.hits
+        row["replay_unmatched"] = hits["miss"]
+        row["replay_answered"] = sum(hits.values()) - hits["miss"]
+        note = (f"replayed {replay_log.name}: {row['replay_answered']} prompt(s) answered "
+                f"from it, {row['replay_unmatched']} not in it")
+        row["detail"] = f"{result.detail}; {note}" if result.detail else note
+    return row
+
+
+def recorded_log_path(run_dir: Path, family: str, seed: int, method: str) -> Path:
+    """Where a benchmark run in ``run_dir`` wrote the decision log of one scene."""
+    return run_dir / "decisions" / f"{family}-{seed:03d}-{method}.jsonl"
+
+
+def replay_check(rows: list[dict[str, Any]], recorded: list[dict[str, Any]],
+                 recorded_method: str) -> list[str]:
+    """One line per ``lmpc-replay`` row of ``rows``: whether it repeats the row of
+    ``recorded`` (same family and seed, ``recorded_method``) exactly: every prompt
+    answered from the log and the same outcome, time and O.C. Resumed rows (read back
+    from results.csv, without the prompt counts) are reported as not checked."""
+    by_scene = {(r["family"], r["seed"]): r for r in recorded if r["method"] == recorded_method}
+    lines = []
+    for row in sorted((r for r in rows if r["method"] == "lmpc-replay"),
+                      key=lambda r: (r["family"], r["seed"])):
+        scene = f"{row['family']} seed {row['seed']}"
+        old = by_scene.get((row["family"], row["seed"]))
+        if row["outcome"] == "error":
+            lines.append(f"{scene}: not checked ({row['detail']})")
+        elif "replay_unmatched" not in row:
+            lines.append(f"{scene}: not checked (row kept by --resume)")
+        elif old is None:
+            lines.append(f"{scene}: no recorded {recorded_method} row to compare with")
+        else:
+            same = [row[c] == old[c] for c in ("outcome", "time_s", "overall_cost")]
+            verdict = ("exact repeat" if all(same) and row["replay_unmatched"] == 0
+                       else "differs")
+            lines.append(
+                f"{scene}: {verdict}: {row['replay_unmatched']} of "
+                f"{row['replay_unmatched'] + row['replay_answered']} prompt(s) not in the log; "
+                f"{row['outcome']} t={row['time_s']}s O.C.={row['overall_cost']} vs recorded "
+                f"{old['outcome']} t={old['time_s']}s O.C.={old['overall_cost']}")
+    return lines
 
 
 def _mean(values: Any) -> float:
@@ -289,6 +365,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     help="keep the rows of OUT/results.csv (an earlier, interrupted run of "
                          "the same code) and run only the scenes it lacks; error rows are "
                          "run again")
+    ap.add_argument("--replay-from", type=Path, metavar="DIR",
+                    help="lmpc-replay: the finished run folder whose decision logs "
+                         "(DIR/decisions/) answer and whose results.csv is compared with")
+    ap.add_argument("--replay-of", default="lmpc-local", metavar="METHOD",
+                    help="lmpc-replay: the recorded method (its logs and planner settings; "
+                         "default lmpc-local)")
     ap.add_argument("--decision-stats", type=Path, metavar="DIR",
                     help="only print the planner figures of a finished run folder "
                          "(DIR/decisions/*.jsonl) and write DIR/decisions.md")
@@ -304,6 +386,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         ap.error(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)}")
+    replay: Optional[tuple[str, str]] = None
+    if "lmpc-replay" in methods:
+        if args.replay_from is None or not (args.replay_from / "decisions").is_dir():
+            ap.error("lmpc-replay needs --replay-from DIR, a finished run folder with "
+                     f"DIR/decisions/ (got {args.replay_from})")
+        if args.replay_of not in METHODS or args.replay_of in ("mpc", "lmpc-replay"):
+            ap.error(f"--replay-of {args.replay_of!r}: the method that recorded the logs, "
+                     "one of lmpc-rules, lmpc-local, lmpc-openai")
+        replay = (str(args.replay_from.resolve()), args.replay_of)
     args.out.mkdir(parents=True, exist_ok=True)
     work_dir = tempfile.mkdtemp(prefix="lmpc-bench-")
     jobs = [(m, f, s) for f in families for s in args.seeds for m in methods]
@@ -340,7 +431,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     pool = ProcessPoolExecutor(max_workers=max(1, args.workers))
     try:
         futures = {pool.submit(run_scene, m, f, s, work_dir, scene_file, args.instruction,
-                               str(log_dir)): (m, f, s) for m, f, s in jobs}
+                               str(log_dir), replay): (m, f, s) for m, f, s in jobs}
         for fut in as_completed(futures):
             m, f, s = futures[fut]
             try:
@@ -369,6 +460,20 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     partial = ({"scenes_done": len(rows), "scenes_planned": len(jobs) + kept}
                if interrupted else None)
     write_outputs(args, rows, log_dir, time.monotonic() - t0, partial, resumed=kept)
+    if replay is not None:
+        try:
+            recorded = read_rows(args.replay_from / "results.csv",
+                                 {(args.replay_of, r["family"], r["seed"]) for r in rows})
+        except (OSError, ValueError, KeyError) as exc:
+            print(f"benchmark: replay check: cannot read {args.replay_from / 'results.csv'}: "
+                  f"{exc}", file=sys.stderr)
+            recorded = []
+        lines = replay_check(rows, recorded, args.replay_of)
+        exact = sum(": exact repeat:" in line for line in lines)
+        report = (f"replay of {args.replay_from} ({args.replay_of}): {exact} of {len(lines)} "
+                  "scene(s) repeat the recorded row exactly\n" + "\n".join(lines) + "\n")
+        (args.out / "replay_check.txt").write_text(report)
+        print(report, end="")
     return 130 if interrupted else 0
 
 
@@ -409,7 +514,7 @@ def write_rows(path: Path, rows: list[dict[str, Any]]) -> None:
     ordered = sorted(rows, key=lambda r: (r["family"], r["method"], r["seed"]))
     tmp = path.with_suffix(".csv.tmp")
     with open(tmp, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=COLUMNS)
+        writer = csv.DictWriter(fh, fieldnames=COLUMNS, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(ordered)
     tmp.replace(path)
