@@ -13,7 +13,14 @@ publisher matched with its subscription. A sync-clock bridge counts the recorder
 among the ego-state subscribers it waits for before step 0 (``extra_subscribers``),
 so step 0 starts only when the recorder hears every producer. Endpoint matching is
 per pair of participants: the bridge seeing the MPC says nothing about the recorder
-seeing it.
+seeing it. Nor is it symmetric: the recorder's subscription can count the planner's
+publisher as matched a moment before that publisher has matched the subscription, and a
+volatile publisher sends a sample only to the readers it knows (a CI run lost step 0's
+decision so). So an expected topic is subscribed only once its publishers are known, with
+their durability as rosbag2 does: transient-local when every publisher offers it (the
+project's producers do, ``lmpc_qos.PRODUCED``), and then the publisher's late match still
+delivers its last samples; volatile otherwise (a user's volatile publisher is recorded
+too, without that guarantee).
 
     record.py --out runs/usi-0/bag          (stop with Ctrl-C / SIGINT: the bag is closed cleanly)
 """
@@ -30,7 +37,12 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 import rclpy  # noqa: E402
 from rclpy.executors import ExternalShutdownException  # noqa: E402
 from rclpy.node import Node  # noqa: E402
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from rclpy.qos import (  # noqa: E402
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+)
 from rosbags.rosbag2 import StoragePlugin, Writer  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
@@ -54,6 +66,11 @@ LATCHED_TOPICS = {topics.topic(topics.MAP), topics.topic(topics.EPISODE)}
 # Reliable and deep: a recorder busy writing must not lose samples to a short history.
 RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000,
                         reliability=ReliabilityPolicy.RELIABLE)
+# The same, asking for the publishers' kept samples (only when every publisher offers them:
+# a transient-local subscription does not match a volatile publisher).
+RECORD_DURABLE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000,
+                                reliability=ReliabilityPolicy.RELIABLE,
+                                durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def message_class(type_name: str) -> type:
@@ -82,16 +99,28 @@ class Recorder(Node):
         self.waiting_for_producers = bool(self.expect)
         self.expect_deadline = time.monotonic() + EXPECT_TIMEOUT_S
         for name, type_name in KNOWN_TOPICS.items():
-            if name != self.ego_topic or not self.expect:
+            if not self._held_back(name):
                 self._subscribe(name, type_name)
         self.create_timer(0.5, self._discover)
         if self.expect:
             self.expect_timer = self.create_timer(0.02, self._check_expected)
         self.get_logger().info(f"recording to {out}")
 
+    def _held_back(self, name: str) -> bool:
+        """Not to be subscribed yet: the ego state (the bridge's start signal) and the
+        expected topics (their publishers' durability decides the QoS) while waiting."""
+        return self.waiting_for_producers and (name == self.ego_topic or name in self.expect)
+
     def _check_expected(self) -> None:
-        missing = [t for t in self.expect
-                   if self.subscriptions_by_topic[t].get_publisher_count() < 1]
+        for name in self.expect:
+            if name not in self.connections:
+                offered = self.get_publishers_info_by_topic(name)
+                if offered:
+                    durable = all(info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                                  for info in offered)
+                    self._subscribe(name, KNOWN_TOPICS[name], durable=durable)
+        missing = [t for t in self.expect if t not in self.subscriptions_by_topic
+                   or self.subscriptions_by_topic[t].get_publisher_count() < 1]
         timed_out = time.monotonic() > self.expect_deadline
         if missing and not timed_out:
             return
@@ -99,15 +128,20 @@ class Recorder(Node):
             self.get_logger().warning(
                 f"no publisher matched on {', '.join(missing)} after {EXPECT_TIMEOUT_S:.0f} s: "
                 f"subscribing to {self.ego_topic} anyway")
+        for name in missing:
+            self._subscribe(name, KNOWN_TOPICS[name])
         self.destroy_timer(self.expect_timer)
         self.waiting_for_producers = False
         self._subscribe(self.ego_topic, KNOWN_TOPICS[self.ego_topic])
         self.get_logger().info(f"producers matched: subscribed to {self.ego_topic}")
 
-    def _subscribe(self, name: str, type_name: str) -> None:
+    def _subscribe(self, name: str, type_name: str, durable: bool = False) -> None:
         if name in self.connections or type_name not in self.typestore.types:
             return
-        qos = lmpc_qos.LATCHED if name in LATCHED_TOPICS else RECORD_QOS
+        qos = (lmpc_qos.LATCHED if name in LATCHED_TOPICS
+               else RECORD_DURABLE_QOS if durable else RECORD_QOS)
+        if durable:
+            self.get_logger().info(f"{name}: publishers keep their samples, asking for them")
         self.connections[name] = self.writer.add_connection(
             name, type_name, typestore=self.typestore)
         self.counts[name] = 0
@@ -121,8 +155,8 @@ class Recorder(Node):
 
     def _discover(self) -> None:
         for name, types in self.get_topic_names_and_types():
-            if name == self.ego_topic and self.waiting_for_producers:
-                continue  # the bridge's start signal: only once the producers matched
+            if self._held_back(name):
+                continue  # subscribed by _check_expected once the producers are known
             if name.startswith(topics.ROOT) and types:
                 self._subscribe(name, types[0])
 

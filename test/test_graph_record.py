@@ -1,11 +1,15 @@
 """`run_graph.py --record` writes every topic of the run as a rosbag2 (MCAP) bag."""
 from __future__ import annotations
 
+import sys
+import time
 from pathlib import Path
 
 import pytest
 
-from graphkit import run_graph
+from graphkit import NodeSet, Probe, run_graph
+
+REPO = Path(__file__).resolve().parents[1]
 
 pytestmark = pytest.mark.graph
 
@@ -44,3 +48,43 @@ def test_record_writes_a_readable_bag_of_every_topic(tmp_path: Path, domain_id: 
     assert counts["/lmpc/map"] == 1
     for topic in ("/lmpc/agents", "/lmpc/signals", "/lmpc/planner/status", "/lmpc/mpc/predicted"):
         assert counts.get(topic, 0) >= steps, topic
+
+
+def test_the_recorder_gets_what_a_producer_sent_before_it_matched(
+        tmp_path: Path, domain_id: int) -> None:
+    """A subscription matched on the recorder's side is not yet matched on the producer's
+    (a CI run lost step 0's decision so). The producers offer their last samples
+    (``lmpc_qos.PRODUCED``) and the recorder asks for them when every publisher of the
+    topic offers them: here a decision published before the recorder even started is in
+    the bag. A volatile publisher (control here) is still recorded: the recorder then
+    subscribes volatile (a transient-local subscription would not match it)."""
+    rosbag2 = pytest.importorskip("rosbags.rosbag2")
+    typesys = pytest.importorskip("rosbags.typesys")
+    from lmpc_msgs_py import qos as lmpc_qos
+
+    bag = tmp_path / "bag"
+    with Probe(domain_id) as probe, NodeSet(tmp_path, domain_id) as nodes:
+        probe.publish("/lmpc/decision", "decision sent before the recorder", lmpc_qos.PRODUCED)
+        probe.publish("/lmpc/control", "control sent before the recorder", lmpc_qos.STREAM)
+        nodes.start_cmd("recorder", [sys.executable, str(REPO / "scripts" / "record.py"),
+                                     "--out", str(bag), "--expect",
+                                     "/lmpc/decision,/lmpc/control"])
+        nodes.wait_for_log("recorder", "producers matched", timeout_s=60)
+        for topic, qos in (("/lmpc/decision", lmpc_qos.PRODUCED),
+                           ("/lmpc/control", lmpc_qos.STREAM)):
+            probe.wait_subscribers(topic, 1, timeout_s=30)  # the publisher's side matched
+            probe.publish(topic, f"{topic.rsplit('/', 1)[1]} sent after", qos)
+        time.sleep(1.0)  # reliable on loopback: let the recorder take them
+        assert nodes.stop("recorder") == 0
+        log = nodes.procs["recorder"].log()
+    assert "/lmpc/decision: publishers keep their samples" in log
+    assert "/lmpc/control: publishers keep their samples" not in log
+    store = typesys.get_typestore(typesys.Stores.ROS2_JAZZY)
+    texts: dict[str, list[str]] = {}
+    with rosbag2.Reader(bag) as reader:
+        for conn, _, raw in reader.messages():
+            if conn.topic in ("/lmpc/decision", "/lmpc/control"):
+                texts.setdefault(conn.topic, []).append(
+                    store.deserialize_cdr(raw, conn.msgtype).data)
+    assert texts["/lmpc/decision"] == ["decision sent before the recorder", "decision sent after"]
+    assert texts["/lmpc/control"] == ["control sent after"]

@@ -17,6 +17,19 @@ STREAM = QoSProfile(
     durability=DurabilityPolicy.VOLATILE,
 )
 
+# What the decision-makers produce (decisions, planner status, controls): the same stream,
+# but the publisher keeps its last samples for a subscriber that asks for them
+# (transient-local). A recorder's subscription can be matched on its side a moment before
+# the publisher has matched it, and a volatile publisher sends step 0's decision to the
+# readers it knows at that instant only; with this the late match still delivers it.
+# Volatile subscribers (the nodes, `ros2 topic echo`) are compatible and get no history.
+PRODUCED = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
 # The map is latched: late joiners get the last snapshot.
 LATCHED = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
