@@ -71,3 +71,27 @@ def test_a_scene_without_a_recorded_log_gets_an_error_row_naming_the_file(
     assert "usi,0,lmpc-replay,error" in csv_text
     assert "no recorded decision log" in csv_text and "usi-000-lmpc-local.jsonl" in csv_text
     assert "usi seed 0: not checked" in (tmp_path / "rep" / "replay_check.txt").read_text()
+
+
+def test_replay_check_calls_a_repeat_only_with_every_prompt_found_and_the_same_row() -> None:
+    from lmpc_scripts import benchmark
+
+    recorded = [{"family": "eoa", "seed": s, "method": "lmpc-local", "outcome": "reached",
+                 "time_s": 120.0, "overall_cost": 244.6886} for s in range(5)]
+
+    def replayed(seed: int, *, unmatched: int = 0, oc: float = 244.6886,
+                 time_s: float = 120.0, outcome: str = "reached") -> dict:
+        return {"family": "eoa", "seed": seed, "method": "lmpc-replay", "outcome": outcome,
+                "time_s": time_s, "overall_cost": oc, "replay_unmatched": unmatched,
+                "replay_answered": 40, "detail": ""}
+
+    rows = [replayed(0, oc=244.6887),           # last rounded digit: still a repeat
+            replayed(1, unmatched=1),           # a prompt the log never saw
+            replayed(2, oc=244.7),              # another cost
+            replayed(3, time_s=120.1),          # another time
+            replayed(4, outcome="collision")]
+    lines = benchmark.replay_check(rows, recorded, "lmpc-local")
+    verdicts = [line.split(": ")[1] for line in lines]
+    assert verdicts == ["exact repeat", "differs", "differs", "differs", "differs"], lines
+    assert benchmark.replay_check(rows[:1], recorded, "lmpc-rules")[0].endswith(
+        "no recorded lmpc-rules row to compare with")
