@@ -89,7 +89,8 @@ class Recorder(Node):
     def __init__(self, out: Path, expect: Sequence[str] = ()) -> None:
         super().__init__("lmpc_recorder")
         self.typestore = get_typestore(Stores.ROS2_JAZZY)
-        self.writer = Writer(out, storage_plugin=StoragePlugin.MCAP)
+        # metadata version 9: what rosbag2 of Jazzy writes (and reads)
+        self.writer = Writer(out, version=9, storage_plugin=StoragePlugin.MCAP)
         self.writer.open()
         self.connections: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
