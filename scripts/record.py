@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Record the graph's topics to a rosbag2 file (MCAP storage) with the `rosbags` library.
 
-Subscribes to the known LanguageMPC topics at once and to any other topic that
-appears under ``/lmpc``; takes the serialized CDR bytes as they come (``raw=True``),
+Subscribes to every topic under ``/lmpc`` (and ``/clock``, ``/diagnostics``) as soon as
+it has publishers; takes the serialized CDR bytes as they come (``raw=True``),
 so the bag holds exactly what went over DDS. ``ros2 bag info/play`` and Foxglove
 read the result.
 
@@ -16,11 +16,12 @@ per pair of participants: the bridge seeing the MPC says nothing about the recor
 seeing it. Nor is it symmetric: the recorder's subscription can count the planner's
 publisher as matched a moment before that publisher has matched the subscription, and a
 volatile publisher sends a sample only to the readers it knows (a CI run lost step 0's
-decision so). So an expected topic is subscribed only once its publishers are known, with
-their durability as rosbag2 does: transient-local when every publisher offers it (the
-project's producers do, ``lmpc_qos.PRODUCED``), and then the publisher's late match still
-delivers its last samples; volatile otherwise (a user's volatile publisher is recorded
-too, without that guarantee).
+decision so, another the MPC's first predicted path). So a topic is subscribed only once
+its publishers are known, with their durability as rosbag2 does: transient-local when
+every publisher offers it (the project's publishers do, ``lmpc_qos.PRODUCED``), and then a
+publisher's late match still delivers its last samples; volatile otherwise (a user's
+volatile publisher is recorded too, without that guarantee; /clock is volatile, as
+rclpy's time source subscribes it).
 
     record.py --out runs/usi-0/bag          (stop with Ctrl-C / SIGINT: the bag is closed cleanly)
 """
@@ -80,6 +81,9 @@ def message_class(type_name: str) -> type:
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
+DISCOVER_PERIOD_S = 0.02
+"""How often the recorder looks for new topics and publishers."""
+
 EXPECT_TIMEOUT_S = 60.0
 """Wall seconds to wait for the expected producers before subscribing to the ego state
 anyway (a producer that never comes: the bridge then reports who is missing)."""
@@ -99,27 +103,14 @@ class Recorder(Node):
         self.expect = list(expect)
         self.waiting_for_producers = bool(self.expect)
         self.expect_deadline = time.monotonic() + EXPECT_TIMEOUT_S
-        for name, type_name in KNOWN_TOPICS.items():
-            if not self._held_back(name):
-                self._subscribe(name, type_name)
-        self.create_timer(0.5, self._discover)
+        # Fast while the graph comes up, so a topic is subscribed well before step 0.
+        self.create_timer(DISCOVER_PERIOD_S, self._discover)
         if self.expect:
-            self.expect_timer = self.create_timer(0.02, self._check_expected)
+            self.expect_timer = self.create_timer(DISCOVER_PERIOD_S, self._check_expected)
         self.get_logger().info(f"recording to {out}")
 
-    def _held_back(self, name: str) -> bool:
-        """Not to be subscribed yet: the ego state (the bridge's start signal) and the
-        expected topics (their publishers' durability decides the QoS) while waiting."""
-        return self.waiting_for_producers and (name == self.ego_topic or name in self.expect)
-
     def _check_expected(self) -> None:
-        for name in self.expect:
-            if name not in self.connections:
-                offered = self.get_publishers_info_by_topic(name)
-                if offered:
-                    durable = all(info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
-                                  for info in offered)
-                    self._subscribe(name, KNOWN_TOPICS[name], durable=durable)
+        self._discover()
         missing = [t for t in self.expect if t not in self.subscriptions_by_topic
                    or self.subscriptions_by_topic[t].get_publisher_count() < 1]
         timed_out = time.monotonic() > self.expect_deadline
@@ -130,19 +121,24 @@ class Recorder(Node):
                 f"no publisher matched on {', '.join(missing)} after {EXPECT_TIMEOUT_S:.0f} s: "
                 f"subscribing to {self.ego_topic} anyway")
         for name in missing:
-            self._subscribe(name, KNOWN_TOPICS[name])
+            self._subscribe(name, KNOWN_TOPICS[name], durable=False)
         self.destroy_timer(self.expect_timer)
         self.waiting_for_producers = False
-        self._subscribe(self.ego_topic, KNOWN_TOPICS[self.ego_topic])
+        self._subscribe(self.ego_topic, KNOWN_TOPICS[self.ego_topic], durable=self._durable(
+            self.get_publishers_info_by_topic(self.ego_topic)))
         self.get_logger().info(f"producers matched: subscribed to {self.ego_topic}")
 
-    def _subscribe(self, name: str, type_name: str, durable: bool = False) -> None:
+    @staticmethod
+    def _durable(offered: Sequence[Any]) -> bool:
+        """Ask for kept samples only if every publisher offers them (rosbag2's rule)."""
+        return bool(offered) and all(
+            info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for info in offered)
+
+    def _subscribe(self, name: str, type_name: str, durable: bool) -> None:
         if name in self.connections or type_name not in self.typestore.types:
             return
         qos = (lmpc_qos.LATCHED if name in LATCHED_TOPICS
                else RECORD_DURABLE_QOS if durable else RECORD_QOS)
-        if durable:
-            self.get_logger().info(f"{name}: publishers keep their samples, asking for them")
         self.connections[name] = self.writer.add_connection(
             name, type_name, typestore=self.typestore)
         self.counts[name] = 0
@@ -153,13 +149,23 @@ class Recorder(Node):
 
         self.subscriptions_by_topic[name] = self.create_subscription(
             message_class(type_name), name, on_raw, qos, raw=True)
+        self.get_logger().info(f"{name}: subscribed" + (
+            " (publishers keep their samples, asking for them)" if durable else ""))
 
     def _discover(self) -> None:
+        """Subscribe every graph topic (the known ones and any under /lmpc) that has
+        publishers, with their durability; the ego state only once the producers matched
+        (the bridge's start signal)."""
         for name, types in self.get_topic_names_and_types():
-            if self._held_back(name):
-                continue  # subscribed by _check_expected once the producers are known
-            if name.startswith(topics.ROOT) and types:
-                self._subscribe(name, types[0])
+            if name in self.connections or not types:
+                continue
+            if name == self.ego_topic and self.waiting_for_producers:
+                continue
+            if name not in KNOWN_TOPICS and not name.startswith(topics.ROOT):
+                continue
+            offered = self.get_publishers_info_by_topic(name)
+            if offered:  # a topic only subscribed to has no QoS to go by yet
+                self._subscribe(name, KNOWN_TOPICS.get(name, types[0]), self._durable(offered))
 
     def close(self) -> None:
         self.writer.close()

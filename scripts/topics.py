@@ -28,6 +28,7 @@ from rclpy.qos import qos_profile_sensor_data  # noqa: E402
 
 from lmpc_msgs_py import ALL_MESSAGES, DecodeError, decode  # noqa: E402
 from lmpc_msgs_py import qos as lmpc_qos  # noqa: E402
+from lmpc_msgs_py import topics as lmpc_topics  # noqa: E402
 
 SCHEMAS = {cls.SCHEMA: cls for cls in ALL_MESSAGES}
 
@@ -109,8 +110,12 @@ class RateMeter:
 
 
 def _qos_for(node: Node, topic: str) -> Any:
+    """Latched for the map and episode topics (when every publisher keeps its last sample,
+    else the subscription would match none); volatile for the streams, whose publishers
+    also keep samples (``lmpc_qos.PRODUCED``) but whose history would distort a rate."""
     infos = node.get_publishers_info_by_topic(topic)
-    if infos and any(i.qos_profile.durability.name == "TRANSIENT_LOCAL" for i in infos):
+    if (infos and topic.rsplit("/", 1)[-1] in (lmpc_topics.MAP, lmpc_topics.EPISODE)
+            and all(i.qos_profile.durability.name == "TRANSIENT_LOCAL" for i in infos)):
         return lmpc_qos.LATCHED
     if infos and all(i.qos_profile.reliability.name == "BEST_EFFORT" for i in infos):
         return qos_profile_sensor_data

@@ -62,9 +62,8 @@ class DecisionNode(LmpcNode):
         self._last_clock_ns: Optional[int] = None
         self._clock_changed_at = time.monotonic()
         self._clock_stalled = False
-        self._decision_pub = self.json_publisher(Decision, topics.DECISION, lmpc_qos.PRODUCED)
-        self._status_pub = self.json_publisher(PlannerStatus, topics.PLANNER_STATUS,
-                                               lmpc_qos.PRODUCED)
+        self._decision_pub = self.json_publisher(Decision, topics.DECISION)
+        self._status_pub = self.json_publisher(PlannerStatus, topics.PLANNER_STATUS)
 
     def start(self) -> None:
         """Subscribe and start the wall timers (call once the core exists)."""

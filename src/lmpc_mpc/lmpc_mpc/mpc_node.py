@@ -71,7 +71,7 @@ class MpcNode(LmpcNode):
         self._frozen = False
         self._seen_ego = False
         self._waiting_logged = False
-        self._pub = self.json_publisher(Control, topics.CONTROL, lmpc_qos.PRODUCED)
+        self._pub = self.json_publisher(Control, topics.CONTROL)
         self._ref_pub = self.create_publisher(Path, self.topic(topics.REFERENCE_PATH),
                                               lmpc_qos.MIRROR)
         self._pred_pub = self.create_publisher(Path, self.topic(topics.PREDICTED_PATH),

@@ -66,7 +66,7 @@ class LmpcNode(Node):
         return topics.topic(name, self.ego_id)
 
     def json_publisher(
-        self, cls: type[M], name: str, qos: QoSProfile = lmpc_qos.STREAM
+        self, cls: type[M], name: str, qos: QoSProfile = lmpc_qos.PRODUCED
     ) -> JsonPublisher[M]:
         return JsonPublisher(self, cls, self.topic(name), qos)
 

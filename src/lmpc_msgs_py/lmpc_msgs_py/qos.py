@@ -17,12 +17,12 @@ STREAM = QoSProfile(
     durability=DurabilityPolicy.VOLATILE,
 )
 
-# What the decision-makers produce (decisions, planner status, controls): the same stream,
-# but the publisher keeps its last samples for a subscriber that asks for them
-# (transient-local). A recorder's subscription can be matched on its side a moment before
-# the publisher has matched it, and a volatile publisher sends step 0's decision to the
-# readers it knows at that instant only; with this the late match still delivers it.
-# Volatile subscribers (the nodes, `ros2 topic echo`) are compatible and get no history.
+# What the nodes publish on those streams: the same, but the publisher keeps its last
+# samples for a subscriber that asks for them (transient local). A recorder's subscription
+# can be matched on its side a moment before the publisher has matched it, and a volatile
+# publisher sends step 0's message to the readers it knows at that instant only; with this
+# the late match still delivers it. Subscribers use STREAM (volatile): compatible, no
+# history, so a restarted node never sees old observations or decisions.
 PRODUCED = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=10,
@@ -48,4 +48,4 @@ CLOCK = QoSProfile(
 
 # Visual mirrors (RViz, Foxglove): best effort is what those tools subscribe with by default
 # for sensor-like data, but reliable publishers serve both kinds of subscriber.
-MIRROR = STREAM
+MIRROR = PRODUCED
