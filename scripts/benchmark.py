@@ -167,7 +167,7 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
     _SOLVER.reset()  # no warm start carried over from the previous episode
     started = time.perf_counter()
     sim, max_time_s = _SIM, 200.0
-    log_path = None if log_dir is None else Path(log_dir) / f"{family}-{seed:03d}-{method}.jsonl"
+    log_path = None if log_dir is None else Path(log_dir) / scene_log_name(family, seed, method)
     if log_path is not None:
         log_path.unlink(missing_ok=True)  # a rerun into the same folder starts the log afresh
     if scene_file is not None:
@@ -180,7 +180,7 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
     if method == "lmpc-replay":
         if replay is None:
             raise ValueError("lmpc-replay needs --replay-from DIR (a finished run folder)")
-        replay_log = recorded_log_path(Path(replay[0]), family, seed, replay[1])
+        replay_log = Path(replay[0]) / "decisions" / scene_log_name(family, seed, replay[1])
         if not replay_log.is_file():
             raise FileNotFoundError(f"no recorded decision log {replay_log}")
     planner = make_planner(method, instruction, log_path=log_path, replay_log=replay_log,
@@ -215,9 +215,9 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
     return row
 
 
-def recorded_log_path(run_dir: Path, family: str, seed: int, method: str) -> Path:
-    """Where a benchmark run in ``run_dir`` wrote the decision log of one scene."""
-    return run_dir / "decisions" / f"{family}-{seed:03d}-{method}.jsonl"
+def scene_log_name(family: str, seed: int, method: str) -> str:
+    """The file name of one scene's decision log in a run's ``decisions/`` folder."""
+    return f"{family}-{seed:03d}-{method}.jsonl"
 
 
 REPEAT_OC_TOL = 2e-4
