@@ -104,13 +104,15 @@ class Recorder(Node):
         self.waiting_for_producers = bool(self.expect)
         self.expect_deadline = time.monotonic() + EXPECT_TIMEOUT_S
         # Fast while the graph comes up, so a topic is subscribed well before step 0.
-        self.create_timer(DISCOVER_PERIOD_S, self._discover)
-        if self.expect:
-            self.expect_timer = self.create_timer(DISCOVER_PERIOD_S, self._check_expected)
+        self.create_timer(DISCOVER_PERIOD_S, self._tick)
         self.get_logger().info(f"recording to {out}")
 
-    def _check_expected(self) -> None:
+    def _tick(self) -> None:
         self._discover()
+        if self.waiting_for_producers:
+            self._check_expected()
+
+    def _check_expected(self) -> None:
         missing = [t for t in self.expect if t not in self.subscriptions_by_topic
                    or self.subscriptions_by_topic[t].get_publisher_count() < 1]
         timed_out = time.monotonic() > self.expect_deadline
@@ -122,7 +124,6 @@ class Recorder(Node):
                 f"subscribing to {self.ego_topic} anyway")
         for name in missing:
             self._subscribe(name, KNOWN_TOPICS[name], durable=False)
-        self.destroy_timer(self.expect_timer)
         self.waiting_for_producers = False
         self._subscribe(self.ego_topic, KNOWN_TOPICS[self.ego_topic], durable=self._durable(
             self.get_publishers_info_by_topic(self.ego_topic)))
