@@ -63,7 +63,7 @@ KNOWN_TOPICS: dict[str, str] = {
     topics.topic(topics.CANDIDATE_MARKERS): "visualization_msgs/msg/MarkerArray",
     topics.topic(topics.AGENT_PREDICTION_MARKERS): "visualization_msgs/msg/MarkerArray",
 }
-LATCHED_TOPICS = {topics.topic(topics.MAP), topics.topic(topics.EPISODE)}
+LATCHED_TOPICS = {topics.topic(name) for name in topics.LATCHED}
 # Reliable and deep: a recorder busy writing must not lose samples to a short history.
 RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000,
                         reliability=ReliabilityPolicy.RELIABLE)

@@ -114,7 +114,7 @@ def _qos_for(node: Node, topic: str) -> Any:
     else the subscription would match none); volatile for the streams, whose publishers
     also keep samples (``lmpc_qos.PRODUCED``) but whose history would distort a rate."""
     infos = node.get_publishers_info_by_topic(topic)
-    if (infos and topic.rsplit("/", 1)[-1] in (lmpc_topics.MAP, lmpc_topics.EPISODE)
+    if (infos and topic.rsplit("/", 1)[-1] in lmpc_topics.LATCHED
             and all(i.qos_profile.durability.name == "TRANSIENT_LOCAL" for i in infos)):
         return lmpc_qos.LATCHED
     if infos and all(i.qos_profile.reliability.name == "BEST_EFFORT" for i in infos):

@@ -26,6 +26,9 @@ AGENT_PREDICTION_MARKERS = "mpc/agent_predictions"
 AGENT_MARKERS = "agents/markers"
 DIAGNOSTICS = "/diagnostics"
 
+LATCHED = (MAP, EPISODE)
+"""The topics published latched (``lmpc_qos.LATCHED``): a late subscriber gets the last one."""
+
 
 def topic(name: str, ego_id: str | None = None) -> str:
     """Full topic name; absolute names (``/clock``) pass through unchanged."""
