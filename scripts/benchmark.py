@@ -10,6 +10,7 @@ decision log in ``decisions/<family>-<seed>-<method>.jsonl``.
 
     benchmark.py --families usi --seeds 0-24 --methods mpc,lmpc-rules --out runs/bench
     benchmark.py --scene examples/city.yaml --methods mpc,lmpc-rules   # your own network
+    benchmark.py --scene examples/city.yaml --seeds 0-4   # five scenes: SUMO + traffic seeds
     benchmark.py --families lane --methods lmpc-rules --instruction "drive aggressively"
     benchmark.py --families eoa --methods lmpc-replay --replay-from runs/bench_local  # repeat
 
@@ -121,11 +122,13 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
               scene_file: Optional[str] = None,
               instruction: Optional[str] = None,
               log_dir: Optional[str] = None,
-              replay: Optional[tuple[str, str]] = None) -> dict[str, Any]:
+              replay: Optional[tuple[str, str]] = None,
+              scene_seed: bool = False) -> dict[str, Any]:
     """One episode in this worker process; returns its results row.
 
     With ``scene_file`` the episode runs that scene description (``family`` and
-    ``seed`` are then its name and SUMO seed, for the row). Anything that raises gives
+    ``seed`` are then its name and SUMO seed, for the row; ``scene_seed``: ``seed``
+    replaces the file's SUMO seed and background-traffic seed). Anything that raises gives
     an ``error`` row with the reason (exceptions holding SUMO objects do not pickle).
     ``instruction``: the user's text for the planner (ignored by ``mpc``); ``log_dir``:
     where the planner's decision log of the scene goes (``<family>-<seed>-<method>.jsonl``);
@@ -135,7 +138,7 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
     """
     try:
         return _run_scene(method, family, seed, work_dir, scene_file, instruction, log_dir,
-                          replay)
+                          replay, scene_seed)
     except Exception as exc:  # noqa: BLE001 - one broken scene must not end the run
         return error_row(method, family, seed, f"{type(exc).__name__}: {exc}")
 
@@ -150,7 +153,8 @@ def error_row(method: str, family: str, seed: int, detail: str) -> dict[str, Any
 def _run_scene(method: str, family: str, seed: int, work_dir: str,
                scene_file: Optional[str], instruction: Optional[str] = None,
                log_dir: Optional[str] = None,
-               replay: Optional[tuple[str, str]] = None) -> dict[str, Any]:
+               replay: Optional[tuple[str, str]] = None,
+               scene_seed: bool = False) -> dict[str, Any]:
     global _SIM, _SOLVER
     from lmpc_bridge.runner import run_episode
     from lmpc_bridge.sim import SumoSim
@@ -174,7 +178,8 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
         from lmpc_bridge.scenarios.external import build_external_scene
 
         scene = build_external_scene(
-            scene_file, work_dir=Path(work_dir) / f"worker-{os.getpid()}")
+            scene_file, work_dir=Path(work_dir) / f"worker-{os.getpid()}",
+            seed=seed if scene_seed else None)
         sim, max_time_s = _SceneFileSim(_SIM, scene), scene.max_time_s
     replay_log = None
     if method == "lmpc-replay":
@@ -189,6 +194,11 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
                          controller=MpcController(config, solver=_SOLVER),
                          planner=planner, max_time_s=max_time_s)
     m = result.metrics
+    # external scenes: demand that never reached the episode (issue 21: a recorded file
+    # starting at 7:00 on a scene starting at 0 "reached" with every penalty 0)
+    notes = ([result.detail] if result.detail else []) + [
+        f"traffic: {w}" for w in sim.traffic_warnings()]
+    detail = "; ".join(notes)
     row = {
         "family": family, "seed": seed, "method": method, "outcome": result.outcome,
         "collision": int(result.outcome == "collision"),
@@ -203,7 +213,7 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
         if result.compute_wall_ms else math.nan,
         "compute_ms_p99": round(percentile(result.compute_wall_ms, 0.99), 3),
         "wall_s": round(time.perf_counter() - started, 2),
-        "detail": result.detail,
+        "detail": detail,
     }
     if replay_log is not None:
         hits = planner.backend.hits
@@ -211,7 +221,7 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
         row["replay_answered"] = sum(hits.values()) - hits["miss"]
         note = (f"replayed {replay_log.name}: {row['replay_answered']} prompt(s) answered "
                 f"from it, {row['replay_unmatched']} not in it")
-        row["detail"] = f"{result.detail}; {note}" if result.detail else note
+        row["detail"] = f"{detail}; {note}" if detail else note
     return row
 
 
@@ -359,12 +369,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--families", default="usi", help="comma-separated families")
-    ap.add_argument("--seeds", type=parse_seeds, default=parse_seeds("0-24"))
+    ap.add_argument("--seeds", type=parse_seeds, default=None,
+                    help="e.g. 0-24 or 0,3,5-7 (default 0-24); with --scene: one scene per "
+                         "seed, the seed replacing the file's SUMO seed and its background "
+                         "traffic seed (default: the file's own seeds, one scene)")
     ap.add_argument("--methods", default="mpc,lmpc-rules")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--out", type=Path, default=Path("runs/bench"))
     ap.add_argument("--scene", type=Path,
-                    help="run this scene description (YAML) instead of families / seeds")
+                    help="run this scene description (YAML) instead of families")
     ap.add_argument("--instruction", default=None, metavar="TEXT",
                     help="the user's instruction for the planner (e.g. 'drive conservatively'"
                          "); the mpc baseline ignores it")
@@ -382,6 +395,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     help="only print the planner figures of a finished run folder "
                          "(DIR/decisions/*.jsonl) and write DIR/decisions.md")
     args = ap.parse_args(argv)
+    scene_seeds = args.scene is not None and args.seeds is not None
+    if args.seeds is None:
+        args.seeds = parse_seeds("0-24")
     if args.decision_stats is not None:
         stats = decision_stats(args.decision_stats / "decisions")
         text = stats_md(stats)
@@ -410,13 +426,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         from lmpc_bridge.scenarios import SceneError
         from lmpc_bridge.scenarios.external import build_external_scene
 
-        try:  # validate (and build once) before any worker starts
-            scene = build_external_scene(args.scene, work_dir=Path(work_dir))
+        try:  # validate (and build once per seed) before any worker starts
+            scenes = [build_external_scene(args.scene, work_dir=Path(work_dir), seed=s)
+                      for s in args.seeds] if scene_seeds \
+                else [build_external_scene(args.scene, work_dir=Path(work_dir))]
         except SceneError as exc:
             print(f"benchmark: {exc}", file=sys.stderr)
             return 2
         scene_file = str(args.scene.resolve())
-        jobs = [(m, scene.family, scene.seed) for m in methods]
+        jobs = [(m, sc.family, sc.seed) for sc in scenes for m in methods]
     rows: list[dict[str, Any]] = []
     if args.resume:
         try:
@@ -438,7 +456,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     pool = ProcessPoolExecutor(max_workers=max(1, args.workers))
     try:
         futures = {pool.submit(run_scene, m, f, s, work_dir, scene_file, args.instruction,
-                               str(log_dir), replay): (m, f, s) for m, f, s in jobs}
+                               str(log_dir), replay, scene_seeds): (m, f, s)
+                   for m, f, s in jobs}
         for fut in as_completed(futures):
             m, f, s = futures[fut]
             try:
@@ -481,7 +500,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                   "scene(s) repeat the recorded row exactly\n" + "\n".join(lines) + "\n")
         (args.out / "replay_check.txt").write_text(report)
         print(report, end="")
-    return 130 if interrupted else 0
+    if interrupted:
+        return 130
+    if rows and all(r["outcome"] == "error" for r in rows):
+        print(f"benchmark: every one of the {len(rows)} scene(s) ended in an error; the "
+              f"first: {rows[0]['family']} seed {rows[0]['seed']} {rows[0]['method']}: "
+              f"{rows[0]['detail']}", file=sys.stderr, flush=True)
+        return 1
+    return 0
 
 
 def _raise_interrupt(signum: int, frame: Any) -> None:

@@ -49,6 +49,7 @@ from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from lmpc_msgs_py import qos as lmpc_qos  # noqa: E402
 from lmpc_msgs_py import topics  # noqa: E402
+from lmpc_msgs_py.supervision import follow_supervisor  # noqa: E402
 
 STRING = "std_msgs/msg/String"
 KNOWN_TOPICS: dict[str, str] = {
@@ -186,6 +187,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     unknown = sorted(set(expect) - set(KNOWN_TOPICS))
     if unknown:
         ap.error(f"--expect: not a recorded topic: {', '.join(unknown)}")
+    follow_supervisor()  # started by run_graph.py: never outlive it
     rclpy.init(args=ros_args)
     node: Optional[Recorder] = None
     try:

@@ -2,9 +2,13 @@
 """Run the LanguageMPC graph: bridge, planner and MPC as three separate processes.
 
 Starts the nodes on simulated time, prefixes and streams their logs (and keeps
-them in the run folder), stops every child on Ctrl-C or when the episode ends,
-and writes a summary JSON. Exit code: 0 target reached, 1 collision,
-2 timeout, 3 error (a node crashed, or the episode never finished).
+them in the run folder), stops every child when the episode ends or on SIGINT
+(Ctrl-C), SIGTERM or SIGHUP (ordered: SIGINT to each node, SIGTERM then SIGKILL
+to what lingers), and writes a summary JSON as far as the run got. A node never
+outlives this process: it is started with ``LMPC_SUPERVISOR_PID`` and ends itself
+when the supervisor dies, even by SIGKILL (``lmpc_msgs_py.supervision``).
+Exit code: 0 target reached, 1 collision, 2 timeout, 3 error (a node crashed,
+the episode never finished, or the run was stopped by a signal).
 
     run_graph.py --scenario usi --seed 0 --planner rules --clock sync
     run_graph.py --scene examples/city.yaml --planner rules    # your own network
@@ -28,7 +32,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Optional, Sequence
+from typing import IO, Any, Optional, Sequence
 
 SCRIPTS = Path(__file__).resolve().parent
 EXIT_CODES = {"reached": 0, "collision": 1, "timeout": 2, "error": 3}
@@ -54,6 +58,35 @@ def ros_env(domain_id: Optional[int] = None) -> dict[str, str]:
     return env
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""Signals that stop the graph in order, as in ``ros2 launch`` (STYLE.md 14)."""
+
+
+class StopSignals:
+    """The first SIGINT / SIGTERM / SIGHUP raises ``KeyboardInterrupt`` in the main thread
+    (the run stops its nodes and writes its summary); one arriving once the shut-down has
+    begun (the episode ended, or an earlier signal) is only noted: the ordered stop goes
+    on, and its own escalation ends every node. Installed even where the parent left
+    SIGINT ignored (a shell's background job): a user's ``kill -INT`` must work too."""
+
+    def __init__(self) -> None:
+        self.received: list[str] = []
+        self.stopping = False
+
+    def install(self) -> None:
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, self._handle)
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        name = signal.Signals(signum).name
+        self.received.append(name)
+        if not self.stopping:
+            self.stopping = True
+            raise KeyboardInterrupt(name)
+        print(f"[run_graph] {name} received while stopping: the shut-down goes on",
+              file=sys.stderr, flush=True)
+
+
 @dataclass
 class Child:
     name: str
@@ -61,6 +94,8 @@ class Child:
     log_file: IO[str]
     tracebacks: int = 0
     lines: list[str] = field(default_factory=list)
+    stop_s: Optional[float] = None
+    """Wall seconds from the start of :meth:`Graph.stop` until this process had exited."""
 
 
 class Graph:
@@ -84,15 +119,22 @@ class Graph:
 
     def start(self, name: str, args: list[str], cpus: Optional[set[int]] = None) -> Child:
         log_file = open(self.run_dir / f"{name}.log", "w", encoding="utf-8")
+        # LMPC_SUPERVISOR_PID: the child ends itself when this process dies (prctl
+        # PR_SET_PDEATHSIG + a parent-pid watch). Started from the main thread: the
+        # death signal fires when the forking *thread* ends.
+        env = dict(self.env, LMPC_SUPERVISOR_PID=str(os.getpid()))
         proc = subprocess.Popen(
-            args, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
             bufsize=1, start_new_session=True,
         )
-        if cpus:
-            os.sched_setaffinity(proc.pid, cpus)
         child = Child(name, proc, log_file)
+        self.children.append(child)  # tracked at once: a signal may interrupt what follows
+        if cpus:
+            try:
+                os.sched_setaffinity(proc.pid, cpus)
+            except ProcessLookupError:
+                pass  # it died already; the run notices
         threading.Thread(target=self._pump, args=(child,), daemon=True).start()
-        self.children.append(child)
         return child
 
     def _pump(self, child: Child) -> None:
@@ -111,21 +153,34 @@ class Graph:
                     print(f"[{child.name}] {line}", flush=True)
 
     def stop(self, timeout_s: float = 5.0) -> None:
-        """SIGINT every child, then SIGTERM / SIGKILL its process group if it lingers."""
+        """SIGINT every child, then SIGTERM / SIGKILL its process group if it lingers.
+
+        Records each child's exit time (``Child.stop_s``). Runs to its end even when a
+        stop signal arrives meanwhile (:class:`StopSignals` does not interrupt it)."""
+        t0 = time.monotonic()
         for child in self.children:
             if child.proc.poll() is None:
                 _signal_group(child.proc, signal.SIGINT)
         deadline = time.monotonic() + timeout_s
         for sig in (signal.SIGTERM, signal.SIGKILL):
+            while time.monotonic() < deadline and any(
+                    c.proc.poll() is None for c in self.children):
+                self._note_exits(t0)
+                time.sleep(0.02)
+            self._note_exits(t0)
             for child in self.children:
-                try:
-                    child.proc.wait(max(0.0, deadline - time.monotonic()))
-                except subprocess.TimeoutExpired:
+                if child.proc.poll() is None:
                     _signal_group(child.proc, sig)
             deadline = time.monotonic() + 2.0
         for child in self.children:
             child.proc.wait()
             child.log_file.close()
+        self._note_exits(t0)
+
+    def _note_exits(self, t0: float) -> None:
+        for child in self.children:
+            if child.stop_s is None and child.proc.poll() is not None:
+                child.stop_s = round(time.monotonic() - t0, 3)
 
 
 def _wait_for_log(child: Child, needle: str, timeout_s: float) -> None:
@@ -141,6 +196,8 @@ INSTRUCTION_TIMEOUT_S = 60.0
 """Wall time to get the instruction to the planner (its start-up included)."""
 _PUBLISH_INSTRUCTION = """
 import sys, time
+from lmpc_msgs_py.supervision import follow_supervisor
+follow_supervisor()
 import rclpy
 from std_msgs.msg import String
 from lmpc_msgs_py import qos, topics
@@ -273,7 +330,10 @@ def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, 
     return params
 
 
-def run(args: argparse.Namespace) -> dict[str, object]:
+def run(args: argparse.Namespace, stops: Optional[StopSignals] = None) -> dict[str, object]:
+    """Run one episode; ``stops``: the installed stop-signal handler (main() installs
+    one; without it a signal ends the process as Python's defaults do)."""
+    stops = stops or StopSignals()
     stamp = time.strftime("%Y%m%d-%H%M%S")
     # a scene file names the folder by its stem (its checked `name` is not known before
     # the build, and a failed build keeps its summary in this folder too)
@@ -292,7 +352,11 @@ def run(args: argparse.Namespace) -> dict[str, object]:
         try:
             scene = build_external_scene(args.scene, work_dir=run_dir / "scene")
         except SceneError as exc:
+            stops.stopping = True
             return scene_failure(run_dir, args, str(exc))
+        except KeyboardInterrupt:
+            return scene_failure(run_dir, args, f"stopped by {_signal_names(stops)} while "
+                                 "building the scene (no node was started)")
         args.scenario, args.seed = scene.family, scene.seed
     graph = Graph(run_dir, ros_env(args.domain_id), echo=not args.quiet)
     params = node_params(args, run_dir)
@@ -301,26 +365,14 @@ def run(args: argparse.Namespace) -> dict[str, object]:
     split = len(cpus) >= 2
     t0 = time.monotonic()
     interrupted = False
-    if args.record:
-        bag = run_dir / "bag"
-        if bag.exists():
-            shutil.rmtree(bag)
-        from lmpc_msgs_py import topics
-
-        # the producers the recorder must hear before it lets the bridge start (record.py)
-        produced = [topics.CONTROL] + ([topics.DECISION, topics.PLANNER_STATUS]
-                                       if any(n in params for n in ("planner", "mock_llm"))
-                                       else [])
-        recorder = graph.start("recorder", [
-            sys.executable, str(SCRIPTS / "record.py"), "--out", str(bag),
-            "--expect", ",".join(topics.topic(t) for t in produced)])
-        _wait_for_log(recorder, "recording to", timeout_s=30.0)
     order = list(params)
     if args.instruction:
         # the decision node first: it must hold the instruction before the first step
         order.sort(key=lambda n: n not in ("planner", "mock_llm"))
     crashed: list[str] = []
     try:
+        if args.record:
+            _start_recorder(graph, run_dir, params)
         for name in order:
             cpu_set = None
             if split and name in ("planner", "mock_llm"):
@@ -353,9 +405,34 @@ def run(args: argparse.Namespace) -> dict[str, object]:
     except KeyboardInterrupt:
         interrupted = True
     finally:
+        # from here on a stop signal no longer interrupts: the ordered stop must finish
+        # (a SIGTERM inside it once left the MPC and the planner running)
+        stops.stopping = True
         graph.stop()
     wall_s = time.monotonic() - t0
-    return summarize(run_dir, graph, wall_s, crashed=crashed, interrupted=interrupted, args=args)
+    return summarize(run_dir, graph, wall_s, crashed=crashed, interrupted=interrupted, args=args,
+                     signals=stops.received)
+
+
+def _signal_names(stops: StopSignals) -> str:
+    return "/".join(dict.fromkeys(stops.received)) or "an interrupt"
+
+
+def _start_recorder(graph: Graph, run_dir: Path, params: dict[str, dict[str, object]]) -> None:
+    """Start scripts/record.py (rosbag2 of every topic) and wait until it records."""
+    bag = run_dir / "bag"
+    if bag.exists():
+        shutil.rmtree(bag)
+    from lmpc_msgs_py import topics
+
+    # the producers the recorder must hear before it lets the bridge start (record.py)
+    produced = [topics.CONTROL] + ([topics.DECISION, topics.PLANNER_STATUS]
+                                   if any(n in params for n in ("planner", "mock_llm"))
+                                   else [])
+    recorder = graph.start("recorder", [
+        sys.executable, str(SCRIPTS / "record.py"), "--out", str(bag),
+        "--expect", ",".join(topics.topic(t) for t in produced)])
+    _wait_for_log(recorder, "recording to", timeout_s=30.0)
 
 
 def scene_failure(run_dir: Path, args: argparse.Namespace, detail: str) -> dict[str, object]:
@@ -366,7 +443,8 @@ def scene_failure(run_dir: Path, args: argparse.Namespace, detail: str) -> dict[
         "detail": detail, "sim_time_s": 0.0,
         "wall_time_s": 0.0, "real_time_factor": None, "collisions": 0, "decisions": 0,
         "fallbacks": 0, "late_controls": 0, "mpc_solve_ms": {}, "control_latency_ms": {},
-        "metrics": {}, "nodes": {}, "run_dir": str(run_dir), "bag": None,
+        "metrics": {}, "warnings": [], "signals": [], "nodes": {}, "run_dir": str(run_dir),
+        "bag": None,
     }
     return _write_summary(summary, run_dir, args)
 
@@ -382,8 +460,45 @@ def _write_summary(summary: dict[str, object], run_dir: Path,
     return summary
 
 
+def first_error_line(lines: Sequence[str]) -> Optional[str]:
+    """The first error a node's log shows, as one line: a ``scene error:`` line, else the
+    exception line of the first Python traceback (with up to two lines of its message,
+    e.g. pydantic's field and reason), else the first ``[ERROR]`` / ``[FATAL]`` log line."""
+    for line in lines:
+        if line.startswith("scene error:"):
+            return line.strip()
+    for i, line in enumerate(lines):
+        if not line.startswith("Traceback"):
+            continue
+        for j in range(i + 1, len(lines)):
+            if lines[j] and not lines[j].startswith(" "):
+                parts = [lines[j].strip()]
+                for more in lines[j + 1:j + 3]:
+                    if not more.strip() or more.startswith(("Traceback", "During handling",
+                                                            "The above exception", "[")):
+                        break
+                    parts.append(more.strip())
+                return " ".join(parts)[:600]
+        break
+    for line in lines:
+        if line.startswith(("[ERROR]", "[FATAL]")):
+            return line.strip()[:600]
+    return None
+
+
+def _log_lines(run_dir: Path, child: Optional[Child]) -> list[str]:
+    """All lines of a node's log file (``Child.lines`` keeps only the recent ones)."""
+    if child is None:
+        return []
+    try:
+        return (run_dir / f"{child.name}.log").read_text(errors="replace").splitlines()
+    except OSError:
+        return list(child.lines)
+
+
 def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
-              interrupted: bool, args: argparse.Namespace) -> dict[str, object]:
+              interrupted: bool, args: argparse.Namespace,
+              signals: Sequence[str] = ()) -> dict[str, object]:
     episode_path = run_dir / "episode.json"
     episode = json.loads(episode_path.read_text()) if episode_path.exists() else {}
     outcome = episode.get("outcome", "error")
@@ -397,11 +512,12 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
         if "wall-timeout" in crashed:
             reasons.append(f"wall timeout {args.wall_timeout_s:.0f}s")
         if interrupted:
-            reasons.append("interrupted")
-        scene_errors = [line for line in (bridge.lines if bridge is not None else [])
-                        if line.startswith("scene error:")]
-        if scene_errors:
-            reasons.append(scene_errors[-1])
+            names = "/".join(dict.fromkeys(signals)) or "an interrupt"
+            reasons.append(f"interrupted by {names}")
+        bridge_error = first_error_line(_log_lines(run_dir, bridge)) if bridge_failed \
+            or not episode else None
+        if bridge_error is not None:
+            reasons.append(f"bridge: {bridge_error}")
         elif not episode:
             reasons.append("the bridge wrote no episode record")
         detail = "; ".join(reasons) or detail
@@ -425,7 +541,10 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
         "mpc_solve_ms": episode.get("mpc_solve_ms", {}),
         "control_latency_ms": episode.get("control_latency_ms", {}),
         "metrics": metrics,
-        "nodes": {c.name: {"exit_code": c.proc.returncode, "tracebacks": c.tracebacks}
+        "warnings": episode.get("warnings", []),
+        "signals": list(signals),
+        "nodes": {c.name: {"exit_code": c.proc.returncode, "tracebacks": c.tracebacks,
+                           "stop_s": c.stop_s}
                   for c in graph.children},
         "run_dir": str(run_dir),
         "bag": str(run_dir / "bag") if args.record else None,
@@ -434,8 +553,13 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    args = parse_args(argv)
-    summary = run(args)
+    stops = StopSignals()
+    stops.install()
+    try:
+        args = parse_args(argv)
+    except KeyboardInterrupt:
+        return 130
+    summary = run(args, stops)
     metrics = summary["metrics"] if isinstance(summary["metrics"], dict) else {}
     print(
         f"[run_graph] outcome={summary['outcome']} sim={summary['sim_time_s']:.1f}s "
@@ -448,6 +572,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     )
     if summary["detail"]:
         print(f"[run_graph] {summary['detail']}", flush=True)
+    for line in summary.get("warnings") or []:
+        print(f"[run_graph] warning: {line}", flush=True)
     return EXIT_CODES.get(str(summary["outcome"]), 3)
 
 

@@ -133,6 +133,8 @@ class BridgeNode(LmpcNode):
                 f"building scene from {self.cfg.scene_file} ({self.cfg.clock_mode} clock)")
             scene = build_external_scene(self.cfg.scene_file, work_dir=run_dir / "scene")
             self.sim.reset_scene(scene)
+            for line in self.sim.traffic_warnings():  # e.g. demand that starts hours later
+                self.get_logger().warning(f"traffic: {line}")
         else:
             self.get_logger().info(
                 f"building scene {self.cfg.scenario} seed {self.cfg.seed} "
@@ -384,6 +386,9 @@ class BridgeNode(LmpcNode):
 
     def _write_episode(self, status: EpisodeStatus) -> None:
         sources = list(self.stats.decisions.values())
+        warnings = [f"traffic: {line}" for line in self.sim.traffic_warnings()]
+        for line in warnings:
+            self.get_logger().warning(line)
         out = {
             "scenario": self.sim.scene.family,
             "seed": self.sim.scene.seed,
@@ -400,6 +405,7 @@ class BridgeNode(LmpcNode):
             "mpc_solve_ms": _percentiles(self.stats.solve_ms),
             "control_latency_ms": _percentiles(self.stats.latency_ms),
             "dropped_messages": self.counters.get("dropped_messages", 0),
+            "warnings": warnings,
             "record": self.sim.record().to_json(),
         }
         path = self.run_dir / "episode.json"

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 
 from lmpc_msgs_py.codec import MAX_PAYLOAD_BYTES, encode
 from lmpc_msgs_py.messages import (
@@ -420,6 +421,20 @@ def _route_lanes(net: Any, scene: Scene) -> list[str]:
     return lanes
 
 
+def _short(text: str, keep: int = 60) -> str:
+    return repr(text) if len(text) <= keep else f"{text[:keep]!r}... ({len(text)} characters)"
+
+
+def _refused(scene: Scene, what: str, exc: ValidationError) -> SceneError:
+    """One line: which map element the message schema refused, which field, why."""
+    err = exc.errors(include_url=False)[0]
+    loc = ".".join(str(p) for p in err["loc"])
+    value = err.get("input")
+    shown = _short(value) if isinstance(value, str) else repr(value)[:60]
+    return SceneError(f"the map of scene {scene.family}/{scene.seed} cannot be sent: {what}: "
+                      f"field '{loc}' = {shown}: {err['msg']} (lmpc_msgs_py.messages limits)")
+
+
 def _link(conn: Any) -> LaneLink:
     tls = conn.getTLSID() or None
     index = conn.getTLLinkIndex()
@@ -562,21 +577,24 @@ def build_map(scene: Scene, *, map_radius_m: float = MAP_RADIUS_M,
         shape = [(float(x), float(y)) for x, y in lane.getShape()]
         outgoing = lane.getOutgoing()
         attr = attributes[lane.getID()]
-        msg = Lane(
-            id=lane.getID(), edge_id=edge.getID(), index=lane.getIndex(),
-            centerline=tuple(shape), width_m=float(lane.getWidth()),
-            speed_limit_mps=float(lane.getSpeed()), length_m=float(lane.getLength()),
-            internal=internal, successors=tuple(_link(c) for c in outgoing),
-            allowed=attr.allowed_classes, left_lane=attr.left_neighbour,
-            right_lane=attr.right_neighbour, roundabout=attr.roundabout,
-        )
-        stop = None
-        to_node = edge.getToNode()
-        if (not internal and outgoing and to_node is not None
-                and to_node.getType() not in ("dead_end",)):
-            stop = StopLine(lane_id=lane.getID(), position=shape[-1],
-                            junction_id=to_node.getID(),
-                            signalized=any(c.getTLSID() for c in outgoing))
+        try:
+            msg = Lane(
+                id=lane.getID(), edge_id=edge.getID(), index=lane.getIndex(),
+                centerline=tuple(shape), width_m=float(lane.getWidth()),
+                speed_limit_mps=float(lane.getSpeed()), length_m=float(lane.getLength()),
+                internal=internal, successors=tuple(_link(c) for c in outgoing),
+                allowed=attr.allowed_classes, left_lane=attr.left_neighbour,
+                right_lane=attr.right_neighbour, roundabout=attr.roundabout,
+            )
+            stop = None
+            to_node = edge.getToNode()
+            if (not internal and outgoing and to_node is not None
+                    and to_node.getType() not in ("dead_end",)):
+                stop = StopLine(lane_id=lane.getID(), position=shape[-1],
+                                junction_id=to_node.getID(),
+                                signalized=any(c.getTLSID() for c in outgoing))
+        except ValidationError as exc:
+            raise _refused(scene, f"lane {_short(lane.getID())}", exc) from None
         built[lane.getID()] = (msg, stop)
         return msg, stop
 
@@ -588,14 +606,17 @@ def build_map(scene: Scene, *, map_radius_m: float = MAP_RADIUS_M,
         if len(chosen) > MAX_LIST_LEN:
             continue
         entries = [lane_entry(ln) for ln in chosen]
-        snapshot = MapSnapshot(
-            stamp_s=stamp_s, lanes=tuple(e[0] for e in entries),
-            stop_lines=tuple(e[1] for e in entries if e[1] is not None),
-            ego_route=tuple(route),
-            target=TargetArea(lane_ids=scene.target.lane_ids, center=scene.target.center,
-                              radius_m=scene.target.radius_m),
-            left_hand_traffic=left_hand,
-        )
+        try:
+            snapshot = MapSnapshot(
+                stamp_s=stamp_s, lanes=tuple(e[0] for e in entries),
+                stop_lines=tuple(e[1] for e in entries if e[1] is not None),
+                ego_route=tuple(route),
+                target=TargetArea(lane_ids=scene.target.lane_ids, center=scene.target.center,
+                                  radius_m=scene.target.radius_m),
+                left_hand_traffic=left_hand,
+            )
+        except ValidationError as exc:
+            raise _refused(scene, "the map", exc) from None
         if len(encode(snapshot)) <= max_bytes:
             return snapshot, geometry
     raise SceneError(f"the map of scene {scene.family}/{scene.seed} does not fit in "

@@ -40,6 +40,7 @@ from lmpc_msgs_py.messages import (
 from lmpc_msgs_py.observation import Observation
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
 
+from lmpc_bridge import demand as traffic
 from lmpc_bridge.dynamics import EgoPose, clamp_control, step_bicycle, wrap_angle_rad
 from lmpc_bridge.geometry import OrientedBox, box_gap_m, boxes_overlap
 from lmpc_bridge.mapping import RouteGeometry, build_map, read_net
@@ -184,7 +185,8 @@ class SumoSim:
     def reset_scene(self, scene: Scene, *, max_time_s: float | None = None) -> Observation:
         """Start SUMO on a built ``scene`` (a family's or an external one), insert the ego.
 
-        ``scene.params["warmup_s"]`` (external scenes) runs SUMO that long before the
+        ``scene.params["begin_s"]`` (external scenes) starts SUMO at that time
+        (``--begin``) and ``scene.params["warmup_s"]`` runs it that long before the
         ego is inserted, so background traffic fills the network. Failures raise
         :class:`SimError` naming the problem (SUMO cannot load the net, the start
         overlaps a vehicle, SUMO refuses the ego) and leave SUMO closed.
@@ -209,6 +211,9 @@ class SumoSim:
                "--duration-log.disable", "true"]
         if scene.additional_files:
             cmd += ["-a", ",".join(str(p) for p in scene.additional_files)]
+        begin_s = float(scene.params.get("begin_s", 0.0))
+        if begin_s > 0.0:
+            cmd += ["--begin", f"{begin_s:g}"]
         cmd += list(self._extra_args)
         try:
             t.start(cmd)
@@ -643,6 +648,26 @@ class SumoSim:
             collided_with=self._collided_with,
             metrics=compute_metrics(self._steps, time_s=self._time_metric_s()),
         )
+
+    def traffic_warnings(self) -> tuple[str, ...]:
+        """External scenes: a line when no background vehicle departs in the simulated
+        window, and one when fewer vehicles entered so far than the traffic files declare
+        (:mod:`lmpc_bridge.demand`); () for the families' scenes. Call while SUMO runs."""
+        scene = self.scene
+        if "scene_file" not in scene.params:
+            return ()
+        window = traffic.Window(begin_s=float(scene.params.get("begin_s", 0.0)),
+                                warmup_s=float(scene.params.get("warmup_s", 0.0)),
+                                max_time_s=self._max_time_s)
+        try:
+            declared = traffic.declared_demand(scene.additional_files)
+        except (OSError, ValueError) as exc:
+            return (f"traffic files not checked: {exc}",)
+        lines = traffic.window_warnings(declared, window)
+        count = traffic.read_entry_count(self._traci) if self._started else None
+        if count is not None and not lines:
+            lines += traffic.entry_warnings(declared, window, count)
+        return tuple(lines)
 
     def record(self) -> EpisodeRecord:
         """The per-step record so far (``model_dump_json()`` for a file)."""

@@ -50,6 +50,7 @@ class DecisionNode(LmpcNode):
     def __init__(self, name: str) -> None:
         super().__init__(name)
         self.declare_parameter("ego_id", "")
+        self.declare_bridge_gone_exit()
         self.ego_id = self.get_parameter("ego_id").value or None
         self.core: Optional[CoreLike] = None
         self.assembler = ObservationAssembler()
@@ -193,6 +194,8 @@ class DecisionNode(LmpcNode):
             self.get_logger().warn(
                 f"simulation not advancing: /clock unchanged for {CLOCK_WATCHDOG_S:.0f} s wall"
             )
+        if self._clock_stalled:
+            self.exit_if_bridge_gone(True)
 
     def core_counters(self) -> dict[str, Any]:
         return {}

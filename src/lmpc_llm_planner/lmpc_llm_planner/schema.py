@@ -28,8 +28,10 @@ from typing import Annotated, Any, Literal, Mapping, Optional
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from lmpc_msgs_py.messages import MAX_ID_CHARS
+
 Level = Literal["low", "normal", "high"]
-AgentId = Annotated[str, Field(min_length=1, max_length=128)]
+AgentId = Annotated[str, Field(min_length=1, max_length=MAX_ID_CHARS)]  # as the messages
 CandidateIndex = Annotated[int, Field(ge=0, le=2)]
 IntervalIndex = Annotated[int, Field(ge=0, le=31)]
 Stage = Literal["all", "scenario_encoding", "action_guidance", "weight_adjustment"]

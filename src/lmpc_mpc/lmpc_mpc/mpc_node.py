@@ -4,7 +4,8 @@ One control per received ego state, once agents and signals with the same stamp
 are in (or after a short wall wait, then the newest ones), and - sync barrier -
 once the decision named by ``ego_state.required_decision_id`` has arrived (up to
 1 s wall, then it goes on and counts it). Watchdog: if ``/clock`` does not move
-for 2 s wall, it says so once and publishes nothing that moves the car.
+for 2 s wall, it says so once and publishes nothing that moves the car; if the bridge
+has then left the graph for ``bridge_gone_exit_s`` (default 10 s) the node exits.
 """
 from __future__ import annotations
 
@@ -47,6 +48,7 @@ class MpcNode(LmpcNode):
             description="ego namespace ('' = single ego, topics under /lmpc)"))
         ego_id = self.get_parameter("ego_id").get_parameter_value().string_value
         self.ego_id = ego_id or None
+        self.declare_bridge_gone_exit()
         self.declare_parameter("clock_mode", "", ParameterDescriptor(
             description="the bridge's clock mode: 'realtime' enforces the solver's wall-time "
                         "budget, 'sync' only counts overruns ('' = the config's "
@@ -150,6 +152,7 @@ class MpcNode(LmpcNode):
                 self.counters["clock_frozen"] += 1
             self._frozen = True
             self._pending.clear()
+            self.exit_if_bridge_gone(True)
             return
         if self._map is None or not self._pending:
             if self._pending and not self._waiting_logged:

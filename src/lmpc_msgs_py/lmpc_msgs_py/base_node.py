@@ -4,7 +4,10 @@
   subscriptions that validate every payload through the schemas, refuse
   duplicates / backwards sequence numbers, count every drop and log each kind
   of drop once per throttle period, naming topic, field and reason.
-- :func:`run_node`: the Jazzy ``main()`` pattern (STYLE.md 11).
+- :func:`run_node`: the Jazzy ``main()`` pattern (STYLE.md 11); a node started by
+  ``run_graph.py`` also ends when that supervisor dies (:mod:`lmpc_msgs_py.supervision`).
+- :meth:`LmpcNode.exit_if_bridge_gone`: a planner or MPC whose bridge has left the graph
+  for good ends its process instead of waiting forever (docs/RELIABILITY_TESTS.md).
 """
 from __future__ import annotations
 
@@ -17,6 +20,7 @@ from typing import Any, Callable, Generic, Optional, TypeVar
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
@@ -27,10 +31,15 @@ from lmpc_msgs_py import topics
 from lmpc_msgs_py.codec import DecodeError, decode, encode
 from lmpc_msgs_py.freshness import SequenceGate, StaleMessage
 from lmpc_msgs_py.messages import LmpcMessage
+from lmpc_msgs_py.supervision import follow_supervisor
 
 M = TypeVar("M", bound=LmpcMessage)
 
 LOG_THROTTLE_S = 5.0
+BRIDGE_GONE_EXIT_S = 10.0
+"""Default wall seconds a planner / MPC waits, once its ``/clock`` watchdog fired and no
+node publishes ``/clock`` any more, before it ends its process (parameter
+``bridge_gone_exit_s``; 0 = wait forever). Long enough for a bridge restarted by hand."""
 
 
 class JsonPublisher(Generic[M]):
@@ -60,6 +69,50 @@ class LmpcNode(Node):
         self._last_log: dict[str, float] = {}
         self._inputs: dict[str, Any] = {}  # topic -> subscription of a single-producer topic
         self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self._bridge_gone_exit_s = 0.0
+        self._bridge_gone_since: Optional[float] = None
+
+    # -- the bridge gone for good ----------------------------------------------------------
+    def declare_bridge_gone_exit(self) -> None:
+        """Declare ``bridge_gone_exit_s`` (for nodes that live on the bridge's clock)."""
+        value = self.declare_parameter(
+            "bridge_gone_exit_s", BRIDGE_GONE_EXIT_S, ParameterDescriptor(
+                description="wall seconds to wait, after the /clock watchdog fired and while "
+                            "no node publishes /clock, before this node exits (0 = never)",
+                dynamic_typing=True),  # 10 and 10.0 both work on the command line
+        ).value
+        if not isinstance(value, (int, float)) or value < 0:
+            raise ValueError(f"parameter bridge_gone_exit_s must be a number >= 0, "
+                             f"got {value!r}")
+        self._bridge_gone_exit_s = float(value)
+
+    def exit_if_bridge_gone(self, clock_stalled: bool) -> bool:
+        """Call from the ``/clock`` watchdog: True once the node has shut itself down.
+
+        The bridge counts as gone for good when the clock is stalled (the watchdog fired)
+        and nobody has published ``/clock`` for ``bridge_gone_exit_s`` wall seconds. A
+        bridge that is alive but waits (a slow LLM in sync mode) still has its ``/clock``
+        publisher, so the node keeps waiting for it. A bridge killed with SIGKILL leaves
+        the graph only when DDS drops its participant (its lease, ~10-20 s)."""
+        if self._bridge_gone_exit_s <= 0.0 or not clock_stalled \
+                or self.count_publishers(topics.CLOCK) > 0:
+            self._bridge_gone_since = None
+            return False
+        now = time.monotonic()
+        if self._bridge_gone_since is None:
+            self._bridge_gone_since = now
+            self.get_logger().warning(
+                f"no publisher on {topics.CLOCK}: the bridge has left the graph; exiting in "
+                f"{self._bridge_gone_exit_s:.0f} s unless it comes back")
+            return False
+        if now - self._bridge_gone_since < self._bridge_gone_exit_s:
+            return False
+        self.get_logger().warning(
+            f"the bridge has been gone for {self._bridge_gone_exit_s:.0f} s (no publisher on "
+            f"{topics.CLOCK}): exiting")
+        self.exit_code = 0
+        rclpy.try_shutdown()
+        return True
 
     # -- names and I/O -------------------------------------------------------------------
     def topic(self, name: str) -> str:
@@ -163,6 +216,7 @@ def run_node(factory: Callable[[], Node], args: Optional[list[str]] = None) -> i
     Returns the exit code; a node may set ``node.exit_code`` and call
     ``rclpy.try_shutdown()`` to end the spin with that code.
     """
+    follow_supervisor()  # before the slow parts: a dead launcher must not leave us behind
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     rclpy.init(args=args if args is not None else sys.argv)
     node: Optional[Node] = None

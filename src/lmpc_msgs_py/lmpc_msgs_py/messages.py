@@ -26,6 +26,19 @@ MAX_ACCEL_MPS2 = 15.0
 MAX_STEER_RAD = 1.0
 MAX_VEHICLE_DIM_M = 30.0
 MAX_LIST_LEN = 5000
+MAX_ID_CHARS = 1024
+"""Longest id (lane, edge, junction, traffic light, vehicle...) a message carries.
+
+SUMO itself has no limit. netconvert's junction joining builds ids from the joined
+ids: OSM city imports give internal lane ids of 170+ characters, and a test network
+joined twice (test_bridge_limits.py) gives 191 (``:cluster_306484187_cluster_...``).
+Every further join can multiply the length by up to four (``--max-join-ids`` 4), so
+the bound sits ~5x above the longest seen; it still bounds a message (200 attended
+agents x 1 KiB << the 1 MiB payload limit). Was 128 until issue 21. Scene files are
+checked against it before anything starts (``lmpc_bridge.scenarios.limits``)."""
+MAX_LANE_INDEX = 64
+MAX_LANE_WIDTH_M = 20.0
+MAX_LANE_LENGTH_M = 1.0e5
 
 Coord = Annotated[float, Field(ge=-MAX_COORD_M, le=MAX_COORD_M)]
 Yaw = Annotated[float, Field(ge=-2.0 * math.pi, le=2.0 * math.pi)]
@@ -36,7 +49,7 @@ Stamp = Annotated[float, Field(ge=0.0, le=1.0e7)]
 Seq = Annotated[int, Field(ge=0)]
 Dim = Annotated[float, Field(gt=0.0, le=MAX_VEHICLE_DIM_M)]
 Point = tuple[Coord, Coord]
-Ident = Annotated[str, Field(min_length=1, max_length=128)]
+Ident = Annotated[str, Field(min_length=1, max_length=MAX_ID_CHARS)]
 
 
 class LmpcMessage(BaseModel):
@@ -80,11 +93,11 @@ class LaneLink(_Part):
 class Lane(_Part):
     id: Ident
     edge_id: Ident
-    index: Annotated[int, Field(ge=0, le=64)]
+    index: Annotated[int, Field(ge=0, le=MAX_LANE_INDEX)]
     centerline: tuple[Point, ...] = Field(min_length=2, max_length=MAX_LIST_LEN)
-    width_m: Annotated[float, Field(gt=0.0, le=20.0)]
+    width_m: Annotated[float, Field(gt=0.0, le=MAX_LANE_WIDTH_M)]
     speed_limit_mps: Speed
-    length_m: Annotated[float, Field(ge=0.0, le=1.0e5)]
+    length_m: Annotated[float, Field(ge=0.0, le=MAX_LANE_LENGTH_M)]
     internal: bool = False
     """True for a lane inside a junction (SUMO ``:junction_..`` lanes)."""
     successors: tuple[LaneLink, ...] = ()

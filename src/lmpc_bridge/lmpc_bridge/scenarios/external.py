@@ -19,7 +19,9 @@ Relative paths are relative to the scene file. Example (``examples/city.yaml``):
 
 Every problem is one :class:`SceneError` naming the file, the field and the
 reason: a bad field, a missing file, a net that cannot be parsed, an edge the
-net does not have, a route with a gap, a destination that cannot be reached.
+net does not have, a route with a gap, a destination that cannot be reached, an
+element the messages cannot carry (an id over ``MAX_ID_CHARS``, a lane or vehicle
+type over a schema bound: :mod:`lmpc_bridge.scenarios.limits`).
 Problems only SUMO can see (a start that overlaps a vehicle, a net SUMO
 refuses) are raised by :meth:`lmpc_bridge.sim.SumoSim.reset_scene`.
 
@@ -43,19 +45,24 @@ from typing import Annotated, Any, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from lmpc_msgs_py.messages import MAX_ID_CHARS
 from lmpc_msgs_py.yamlfile import field_path, read_mapping
 
+from lmpc_bridge.demand import declared_demand
 from lmpc_bridge.scenarios.base import DEFAULT_MAX_TIME_S, Scene, SceneError
 from lmpc_bridge.scenarios.common import target_on_lanes, write_routes
+from lmpc_bridge.scenarios.limits import check_demand, check_net_ids
 
-EXTERNAL_VERSION = 1
+EXTERNAL_VERSION = 2
 """Bump when the way a scene file becomes a Scene changes (cached builds are redone)."""
+MAX_BEGIN_S = 31.0 * 86400.0
+"""Latest ``begin_s`` accepted (a month of SUMO time; recorded days fit well inside)."""
 SNAP_RADIUS_M = 10.0
 """A start or target point must lie within this distance of a lane the ego may use."""
 EGO_CLASS = "passenger"
 
 _Name = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
-_EdgeId = Annotated[str, Field(min_length=1, max_length=128)]
+_EdgeId = Annotated[str, Field(min_length=1, max_length=MAX_ID_CHARS)]
 _Pos = Annotated[float, Field(ge=0.0, le=1.0e5, allow_inf_nan=False)]
 _Coord = Annotated[float, Field(ge=-1.0e6, le=1.0e6, allow_inf_nan=False)]
 
@@ -127,6 +134,7 @@ class BackgroundSpec(_Spec):
     period_s: Annotated[float, Field(gt=0.0, le=3600.0, allow_inf_nan=False)] = 2.0
     """Mean seconds between two inserted vehicles (``randomTrips.py -p``)."""
     end_s: Annotated[float, Field(gt=0.0, le=86400.0, allow_inf_nan=False)] = 600.0
+    """Trips depart from ``begin_s`` of the scene until ``begin_s + end_s``."""
     seed: Annotated[int, Field(ge=0)] = 0
     fringe_factor: Annotated[float, Field(ge=1.0, le=1000.0)] = 5.0
     """Trips start / end on the fringe this many times more often (through traffic)."""
@@ -144,8 +152,11 @@ class SceneFile(_Spec):
     background: Optional[BackgroundSpec] = None
     seed: Annotated[int, Field(ge=0)] = 0
     """SUMO's ``--seed`` (driver noise, randomised departures)."""
+    begin_s: Annotated[float, Field(ge=0.0, le=MAX_BEGIN_S, allow_inf_nan=False)] = 0.0
+    """SUMO time to start at (``--begin``): a recorded demand file departs at the hour it
+    was recorded (e.g. 25200 = 7:00). Vehicles departing earlier are not loaded."""
     warmup_s: Annotated[float, Field(ge=0.0, le=3600.0, allow_inf_nan=False)] = 0.0
-    """Simulated seconds before the ego is inserted (lets traffic fill the net)."""
+    """Simulated seconds after ``begin_s`` before the ego is inserted (traffic fills the net)."""
     max_time_s: Annotated[float, Field(gt=0.0, le=3600.0,
                                        allow_inf_nan=False)] = DEFAULT_MAX_TIME_S
     ego: EgoSpec
@@ -251,14 +262,14 @@ def _nearest_lane(net: Any, x: float, y: float, *, edges: Optional[set[str]] = N
 
 
 # --- background traffic ------------------------------------------------------------------
-def _random_trips(net_file: Path, out: Path, bg: BackgroundSpec) -> Path:
+def _random_trips(net_file: Path, out: Path, bg: BackgroundSpec, begin_s: float) -> Path:
     """Seeded background trips with SUMO's own randomTrips.py (validated by duarouter)."""
     import sumo
 
     tools = Path(sumo.SUMO_HOME) / "tools"
     cmd = [sys.executable, str(tools / "randomTrips.py"), "-n", str(net_file),
            "-o", str(out), "-r", str(out.with_suffix(".rou.xml")), "--seed", str(bg.seed),
-           "-b", "0", "-e", f"{bg.end_s:g}",
+           "-b", f"{begin_s:g}", "-e", f"{begin_s + bg.end_s:g}",
            "-p", f"{bg.period_s:g}", "--fringe-factor", f"{bg.fringe_factor:g}",
            "--min-distance", f"{bg.min_distance_m:g}", "--prefix", "bg",
            "--vehicle-class", EGO_CLASS, "--validate",
@@ -295,17 +306,27 @@ def _digest(spec: SceneFile, files: list[Path]) -> str:
     return h.hexdigest()[:16]
 
 
-def build_external_scene(scene_file: str | Path, *, work_dir: Path) -> Scene:
+def build_external_scene(scene_file: str | Path, *, work_dir: Path,
+                         seed: Optional[int] = None) -> Scene:
     """Validate ``scene_file`` against its network and build the :class:`Scene`.
 
     Writes the ego's routes file (``ego_type``, ``r_ego``) and the background
     trips under ``work_dir/external/<name>-<digest>/``; a build with the same
     inputs is reused (``scene.json``), so the launcher and the bridge build once.
+    ``seed``: replaces the file's SUMO seed and its background-traffic seed
+    (``benchmark.py --scene X --seeds 0-4``: one scene per seed).
     """
-    from lmpc_bridge.mapping import read_net
+    from lmpc_bridge.mapping import build_map, read_net
 
     where = Path(scene_file).resolve()
     spec = load_scene_file(where)
+    if seed is not None:
+        if seed < 0:
+            raise SceneError(f"seed must be >= 0, got {seed}")
+        bg = spec.background
+        spec = spec.model_copy(update={
+            "seed": seed, "background": None if bg is None else bg.model_copy(
+                update={"seed": seed})})
     base = where.parent
     net_file = _resolve(base, spec.net, "net", where)
     extra = [_resolve(base, r, f"routes[{i}]", where) for i, r in enumerate(spec.routes)]
@@ -318,6 +339,12 @@ def build_external_scene(scene_file: str | Path, *, work_dir: Path) -> Scene:
         except (ValueError, KeyError, TypeError):
             pass  # rebuilt below
     net = read_net(net_file)
+    check_net_ids(net, where=f"scene file {where}: net {net_file.name}")
+    try:
+        user_demand = declared_demand(extra)
+    except ValueError as exc:
+        raise SceneError(f"scene file {where}: routes: cannot read {exc}") from None
+    check_demand(user_demand, where=f"scene file {where}: routes")
 
     # start
     st = spec.ego.start
@@ -410,17 +437,20 @@ def build_external_scene(scene_file: str | Path, *, work_dir: Path) -> Scene:
     additional = list(extra)
     if spec.background is not None:
         additional.append(_random_trips(net_file, scene_dir / "background.trips.xml",
-                                        spec.background))
+                                        spec.background, spec.begin_s))
     scene = Scene(
         family=name, seed=spec.seed, net_file=net_file, route_file=route_file,
         additional_files=tuple(additional), ego_route_edges=tuple(edges),
         ego_depart_lane=start_lane.getIndex(), ego_depart_pos_m=round(float(pos), 3),
         ego_depart_speed_mps=spec.ego.speed_mps, target=target, max_time_s=spec.max_time_s,
         description=spec.description or f"external scene {where.name}",
-        params={"warmup_s": spec.warmup_s, "scene_file": str(where),
+        params={"warmup_s": spec.warmup_s, "begin_s": spec.begin_s, "scene_file": str(where),
                 "left_hand": int(bool(net.lefthand))},
         interaction="not checked (external scene)",
     )
+    # every lane the map will carry must pass the message schema: refused here, one line
+    # naming the lane, rather than in the bridge with a traceback
+    build_map(scene, net=net)
     tmp = cache.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(json.loads(scene.to_json()), indent=1))
     os.replace(tmp, cache)
