@@ -158,6 +158,10 @@ class Graph:
         Records each child's exit time (``Child.stop_s``). Runs to its end even when a
         stop signal arrives meanwhile (:class:`StopSignals` does not interrupt it)."""
         t0 = time.monotonic()
+        running = [c.name for c in self.children if c.proc.poll() is None]
+        if running and self.echo:
+            with self._print_lock:
+                print(f"[run_graph] stopping {', '.join(running)}", flush=True)
         for child in self.children:
             if child.proc.poll() is None:
                 _signal_group(child.proc, signal.SIGINT)
@@ -505,6 +509,13 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
     detail = episode.get("detail", "")
     bridge = next((c for c in graph.children if c.name == "bridge"), None)
     bridge_failed = bridge is None or bridge.proc.returncode not in (0, None)
+    if interrupted and episode and not crashed:
+        # the episode had ended (the bridge lingers ~1 s to deliver its status): its
+        # outcome stands; the signal only cut the shut-down short
+        interrupted = False
+        names = "/".join(dict.fromkeys(signals)) or "an interrupt"
+        detail = "; ".join(filter(None, [detail, f"{names} after the episode ended"]))
+        bridge_failed = False
     if crashed or interrupted or bridge_failed or not episode:
         outcome = "error"
         reasons = [c if c.startswith("instruction:") else f"node {c} stopped early"

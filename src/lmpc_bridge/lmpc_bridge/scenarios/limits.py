@@ -37,17 +37,21 @@ def _too_long(what: str, ident: str, where: str, extra: int = 0) -> SceneError:
 
 
 def check_net_ids(net: Any, *, where: str) -> int:
-    """SceneError for the first edge, lane, junction or traffic light of ``net`` whose id
-    is longer than the messages allow; returns the longest id length found."""
-    longest = 0
-    for edge in net.getEdges(withInternal=True):
+    """SceneError for the first junction, edge, lane or traffic light of ``net`` whose id
+    is longer than the messages allow (junctions first: a joined junction's id is what
+    its internal lanes are named after); returns the longest id length found."""
+    edges = net.getEdges(withInternal=True)
+    nodes = {n.getID() for e in edges for n in (e.getFromNode(), e.getToNode())
+             if n is not None}
+    for nid in sorted(nodes, key=len, reverse=True)[:1]:
+        if len(nid) > MAX_ID_CHARS:
+            raise _too_long("junction", nid, where)
+    longest = max((len(n) for n in nodes), default=0)
+    for edge in sorted(edges, key=lambda e: e.getFunction() != ""):
         eid = edge.getID()
         longest = max(longest, len(eid))
         if len(eid) > MAX_ID_CHARS:
             raise _too_long("edge", eid, where)
-        for node in (edge.getFromNode(), edge.getToNode()):
-            if node is not None and len(node.getID()) > MAX_ID_CHARS:
-                raise _too_long("junction", node.getID(), where)
         for lane in edge.getLanes():
             lid = lane.getID()
             longest = max(longest, len(lid))
