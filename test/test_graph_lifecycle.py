@@ -92,3 +92,123 @@ def test_a_crashed_node_ends_the_run_with_an_error(tmp_path: Path, domain_id: in
     assert proc.returncode == 3, out[-2000:]
     assert "node mpc stopped early" in out
     assert graph_processes(domain_id) == []
+
+
+# --- supervision like ros2 launch (issue 21): SIGTERM / SIGHUP / SIGKILL of run_graph ------
+NO_ORPHANS_AFTER_S = 5.0
+
+
+def _wait_no_nodes(domain_id: int, timeout_s: float = NO_ORPHANS_AFTER_S) -> float:
+    """Seconds until no node process of ``domain_id`` runs (AssertionError after
+    ``timeout_s``); an exited but not yet reaped process does not count."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout_s:
+        if not graph_processes(domain_id):
+            return time.monotonic() - t0
+        time.sleep(0.02)
+    left = graph_processes(domain_id)
+    for pid in left:  # leave nothing behind for the next test
+        os.kill(pid, signal.SIGKILL)
+    raise AssertionError(f"node processes {left} still running {timeout_s:.0f} s later")
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_sigterm_or_sighup_mid_episode_stops_every_node(tmp_path: Path, domain_id: int,
+                                                        sig: signal.Signals) -> None:
+    proc = _start(tmp_path, domain_id, "--planner", "rules", "--clock", "realtime")
+    try:
+        _wait_for_line(proc, "progress t=5.0s", 90)
+        assert len(graph_processes(domain_id)) == 3
+        t0 = time.monotonic()
+        proc.send_signal(sig)
+        out = proc.communicate(timeout=30)[0]
+        run_graph_s = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    left_s = _wait_no_nodes(domain_id)
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    stops = {name: node["stop_s"] for name, node in summary["nodes"].items()}
+    print(f"{sig.name} mid-episode: run_graph exited after {run_graph_s:.2f} s, node exit "
+          f"times {stops} s, no node left {left_s:.2f} s after that")
+    assert proc.returncode == 3, out[-2000:]
+    assert f"interrupted by {sig.name}" in out
+    assert summary["outcome"] == "error" and summary["signals"] == [sig.name]
+    assert summary["sim_time_s"] == 0.0  # mid-episode: the bridge wrote no record
+    assert all(node["exit_code"] is not None for node in summary["nodes"].values())
+
+
+def test_sigterm_during_shutdown_after_the_episode_stops_every_node(
+        tmp_path: Path, domain_id: int) -> None:
+    proc = _start(tmp_path, domain_id, "--planner", "rules", "--clock", "sync",
+                  "--max-time-s", "6")
+    try:
+        _wait_for_line(proc, "[run_graph] stopping", 180)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)  # inside Graph.stop: the MPC and planner still run
+        out = proc.communicate(timeout=30)[0]
+        run_graph_s = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    left_s = _wait_no_nodes(domain_id)
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    stops = {name: node["stop_s"] for name, node in summary["nodes"].items()}
+    print(f"SIGTERM during shut-down: run_graph exited after {run_graph_s:.2f} s, node exit "
+          f"times {stops} s, no node left {left_s:.2f} s after that")
+    assert "SIGTERM received while stopping" in out, out[-2000:]
+    # the episode had ended: its outcome stands, the summary says what happened after
+    assert summary["outcome"] == "timeout" and proc.returncode == 2, out[-2000:]
+    assert summary["signals"] == ["SIGTERM"]
+    assert {c: n["exit_code"] for c, n in summary["nodes"].items()} == {
+        "bridge": 0, "mpc": 0, "planner": 0}
+
+
+def test_sigkill_of_run_graph_leaves_no_node_running(tmp_path: Path, domain_id: int) -> None:
+    proc = _start(tmp_path, domain_id, "--planner", "rules", "--clock", "realtime")
+    try:
+        _wait_for_line(proc, "progress t=5.0s", 90)
+        pids = graph_processes(domain_id)
+        assert len(pids) == 3
+        t0 = time.monotonic()
+        proc.kill()
+        proc.wait(timeout=10)
+        exits: dict[int, float] = {}
+        while len(exits) < len(pids) and time.monotonic() - t0 < NO_ORPHANS_AFTER_S:
+            running = set(graph_processes(domain_id))
+            for pid in pids:
+                if pid not in running and pid not in exits:
+                    exits[pid] = round(time.monotonic() - t0, 3)
+            time.sleep(0.02)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    left_s = _wait_no_nodes(domain_id, timeout_s=max(0.1, NO_ORPHANS_AFTER_S - (
+        time.monotonic() - t0)))
+    print(f"SIGKILL of run_graph: node processes gone after {sorted(exits.values())} s "
+          f"(all by {left_s:.2f} s more)")
+    assert len(exits) == 3
+
+
+def test_planner_and_mpc_exit_once_the_bridge_is_gone_for_good(tmp_path: Path,
+                                                               domain_id: int) -> None:
+    from graphkit import NodeSet, bridge_params, logs_with_tracebacks
+
+    run_dir = tmp_path / "run"
+    with NodeSet(run_dir, domain_id) as g:
+        g.start("bridge", bridge_params(run_dir, scenario="usi", seed=0, max_time_s=4.0,
+                                        clock_mode="realtime", startup_timeout_s=60.0))
+        g.start("mpc", {"use_sim_time": True, "clock_mode": "realtime",
+                        "bridge_gone_exit_s": 1.0})
+        g.start("planner", {"use_sim_time": True, "backend": "rules",
+                            "run_dir": str(run_dir), "bridge_gone_exit_s": 1.0})
+        assert g.wait_exit("bridge", 120) == 0  # the episode ended, the bridge left
+        t_gone = time.monotonic()
+        codes = {name: g.wait_exit(name, 15) for name in ("mpc", "planner")}
+        took = time.monotonic() - t_gone
+        for name in ("mpc", "planner"):
+            log = g.procs[name].log()
+            assert "simulation not advancing" in log and "the bridge has been gone" in log
+    print(f"bridge gone: MPC and planner exited by themselves {took:.2f} s after it")
+    assert codes == {"mpc": 0, "planner": 0}
+    assert logs_with_tracebacks(run_dir) == {}
