@@ -212,3 +212,39 @@ def test_planner_and_mpc_exit_once_the_bridge_is_gone_for_good(tmp_path: Path,
     print(f"bridge gone: MPC and planner exited by themselves {took:.2f} s after it")
     assert codes == {"mpc": 0, "planner": 0}
     assert logs_with_tracebacks(run_dir) == {}
+
+
+def test_first_error_line_of_a_node_log() -> None:
+    from lmpc_scripts.run_graph import first_error_line
+
+    log = ["[INFO] [1.0] [sumo_bridge]: building scene usi seed 0 (sync clock)",
+           "Traceback (most recent call last):",
+           '  File "x.py", line 1, in <module>',
+           "    main()",
+           "pydantic_core._pydantic_core.ValidationError: 1 validation error for Lane",
+           "id",
+           "  String should have at most 128 characters [type=string_too_long]",
+           "During handling of the above exception, another exception occurred:",
+           "Traceback (most recent call last):",
+           "RuntimeError: later"]
+    line = first_error_line(log)
+    assert line == ("pydantic_core._pydantic_core.ValidationError: 1 validation error for Lane "
+                    "id String should have at most 128 characters [type=string_too_long]")
+    assert first_error_line(["x", "scene error: the start overlaps"]) == \
+        "scene error: the start overlaps"
+    assert first_error_line(["[WARN] [1] [b]: w", "[ERROR] [2] [b]: broken"]) == \
+        "[ERROR] [2] [b]: broken"
+    assert first_error_line(["all fine"]) is None
+
+
+def test_a_bridge_that_dies_names_its_first_error_in_the_summary(tmp_path: Path,
+                                                                 domain_id: int) -> None:
+    # a limit run_graph passes on unchecked: the bridge's config refuses it with a traceback
+    run = run_graph(tmp_path, domain_id, "--scenario", "usi", "--seed", "0", "--planner",
+                    "none", "--max-time-s", "-5", "--quiet", timeout_s=120)
+    detail = run.summary["detail"]
+    assert run.returncode == 3, run.output[-2000:]
+    assert "bridge: pydantic_core._pydantic_core.ValidationError: 1 validation error for " \
+           "BridgeConfig max_time_s Input should be greater than 0" in detail, detail
+    assert "wrote no episode record" not in detail
+    assert graph_processes(domain_id) == []
