@@ -24,6 +24,7 @@ from test_bridge_external import (  # noqa: E402
     make_spider_net,
     pick_route,
 )
+from test_bridge_limits import JOINED_FROM, JOINED_TO, longest_ids, make_joined_net  # noqa: E402
 
 BUILDERS = {
     "rand": make_rand_net,
@@ -100,3 +101,31 @@ def test_graph_bad_scene_fails_clearly(tmp_path: Path, domain_id: int) -> None:
                           cwd=cwd, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 3
     assert [p.name.rsplit("-", 2)[0] for p in (cwd / "runs").iterdir()] == ["bad"]
+
+
+def test_long_joined_ids_drive_through_benchmark_and_graph(
+        tmp_path: Path, domain_id: int) -> None:
+    """netconvert's twice-joined cluster (191-character internal lane ids; the issue's OSM
+    import had 170+, over the old 128 bound) through every message of the real graph."""
+    net = make_joined_net(tmp_path)
+    assert longest_ids(net)[0] >= 170
+    scene = tmp_path / "joined.yaml"
+    scene.write_text(
+        f"net: {net}\nseed: 1\nbackground: {{period_s: 4, end_s: 300, seed: 2}}\n"
+        f"warmup_s: 20\nmax_time_s: 90\nego: {{start: {{edge: '{JOINED_FROM}', pos_m: 100}}, "
+        f"speed_mps: 5, to_edge: '{JOINED_TO}'}}\ntarget: {{pos_m: 60}}\n")
+    out = tmp_path / "bench"
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "benchmark.py"), "--scene",
+                           str(scene), "--methods", "mpc,lmpc-rules", "--workers", "2",
+                           "--out", str(out)], capture_output=True, text=True, timeout=400)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert {r["method"]: r["outcome"] for r in rows} == {"mpc": "reached",
+                                                         "lmpc-rules": "reached"}, rows
+    run = run_graph(tmp_path / "g", domain_id, "--scene", str(scene), "--planner", "rules",
+                    "--quiet", timeout_s=400)
+    assert run.returncode == 0, run.summary["detail"] + run.output[-3000:]
+    assert run.summary["outcome"] == "reached" and run.summary["collisions"] == 0
+    lanes = {s["lane_id"] for s in run.episode["record"]["steps"] if s["lane_id"]}
+    assert max(len(lane) for lane in lanes) >= 170  # the ego drove on the long-id lanes
+    assert not graph_processes(domain_id)
