@@ -129,3 +129,30 @@ def test_long_joined_ids_drive_through_benchmark_and_graph(
     lanes = {s["lane_id"] for s in run.episode["record"]["steps"] if s["lane_id"]}
     assert max(len(lane) for lane in lanes) >= 170  # the ego drove on the long-id lanes
     assert not graph_processes(domain_id)
+
+
+def test_late_demand_is_named_in_the_summary_and_the_benchmark(tmp_path: Path,
+                                                               domain_id: int) -> None:
+    """A recorded-style demand file departing from 7:00 (25200 s) on a scene without
+    ``begin_s``: the episode would run on an empty network, and both tools say so."""
+    net = make_joined_net(tmp_path)
+    (tmp_path / "late.rou.xml").write_text(
+        f'<routes><flow id="am" begin="25200" end="28800" period="5" from="eW_30648418100" '
+        f'to="{JOINED_TO}"/></routes>')
+    scene = tmp_path / "late.yaml"
+    scene.write_text(f"net: {net}\nroutes: [late.rou.xml]\nwarmup_s: 10\nmax_time_s: 6\n"
+                     f"ego: {{start: {{edge: '{JOINED_FROM}', pos_m: 100}}, speed_mps: 5, "
+                     f"to_edge: '{JOINED_TO}'}}\n")
+    run = run_graph(tmp_path / "g", domain_id, "--scene", str(scene), "--planner", "none",
+                    "--quiet", timeout_s=300)
+    (warning,) = run.summary["warnings"]
+    assert "no background vehicle departs between t = 0 s and 16 s" in warning
+    assert "set begin_s: 25200" in warning
+    assert "warning: traffic: no background vehicle departs" in run.output
+    out = tmp_path / "bench"
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "benchmark.py"), "--scene",
+                           str(scene), "--methods", "mpc", "--workers", "1", "--out", str(out)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    (row,) = list(csv.DictReader((out / "results.csv").open()))
+    assert "traffic: no background vehicle departs" in row["detail"]
