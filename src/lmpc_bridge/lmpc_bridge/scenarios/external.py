@@ -450,7 +450,10 @@ def build_external_scene(scene_file: str | Path, *, work_dir: Path,
     )
     # every lane the map will carry must pass the message schema: refused here, one line
     # naming the lane, rather than in the bridge with a traceback
-    build_map(scene, net=net)
+    try:
+        build_map(scene, net=net)
+    except SceneError as exc:
+        raise SceneError(f"scene file {where}: {exc}") from None
     tmp = cache.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(json.loads(scene.to_json()), indent=1))
     os.replace(tmp, cache)

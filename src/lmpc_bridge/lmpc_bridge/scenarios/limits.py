@@ -24,14 +24,17 @@ FLOW_SUFFIX_CHARS = 8
 """A flow's vehicles are named ``<flow id>.<index>``: room for the index."""
 
 
-def short_id(text: str, keep: int = 60) -> str:
-    """An id for an error line: a long one shows its start and its length."""
-    return repr(text) if len(text) <= keep else f"{text[:keep]!r}... ({len(text)} characters)"
+def short_id(text: str, keep: int = 60, *, with_length: bool = True) -> str:
+    """An id for an error line: a long one shows its start (and its length)."""
+    if len(text) <= keep:
+        return repr(text)
+    return f"{text[:keep]!r}..." + (f" ({len(text)} characters)" if with_length else "")
 
 
 def _too_long(what: str, ident: str, where: str, extra: int = 0) -> SceneError:
     return SceneError(
-        f"{where}: {what} {short_id(ident)} has an id of {len(ident)} characters"
+        f"{where}: {what} {short_id(ident, with_length=False)} has an id of {len(ident)} "
+        f"characters"
         f"{f' (+{extra} for its vehicles)' if extra else ''}; the messages carry ids of at "
         f"most {MAX_ID_CHARS} (lmpc_msgs_py.messages.MAX_ID_CHARS): rename it")
 
