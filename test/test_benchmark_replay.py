@@ -66,7 +66,9 @@ def test_a_scene_without_a_recorded_log_gets_an_error_row_naming_the_file(
     (tmp_path / "rec" / "decisions").mkdir(parents=True)
     res = _bench("--methods", "lmpc-replay", "--replay-from", str(tmp_path / "rec"),
                  "--out", str(tmp_path / "rep"))
-    assert res.returncode == 0, res.stderr[-2000:]
+    # its only row is an error: the run says so with its exit code (issue 21)
+    assert res.returncode == 1, res.stderr[-2000:]
+    assert "every one of the 1 scene(s) ended in an error" in res.stderr
     csv_text = (tmp_path / "rep" / "results.csv").read_text()
     assert "usi,0,lmpc-replay,error" in csv_text
     assert "no recorded decision log" in csv_text and "usi-000-lmpc-local.jsonl" in csv_text
