@@ -83,8 +83,17 @@ class StopSignals:
         if not self.stopping:
             self.stopping = True
             raise KeyboardInterrupt(name)
-        print(f"[run_graph] {name} received while stopping: the shut-down goes on",
-              file=sys.stderr, flush=True)
+        _say(f"[run_graph] {name} received while stopping: the shut-down goes on",
+             sys.stderr)
+
+
+def _say(text: str, stream: Optional[IO[str]] = None) -> None:
+    """Print, ignoring a closed terminal or pipe (SIGHUP: the terminal is gone): a
+    failed print must never cut the stop of the nodes short."""
+    try:
+        print(text, file=stream or sys.stdout, flush=True)
+    except (OSError, ValueError):
+        pass
 
 
 @dataclass
@@ -150,7 +159,7 @@ class Graph:
                 del child.lines[:100]
             if self.echo:
                 with self._print_lock:
-                    print(f"[{child.name}] {line}", flush=True)
+                    _say(f"[{child.name}] {line}")
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """SIGINT every child, then SIGTERM / SIGKILL its process group if it lingers.
@@ -161,7 +170,7 @@ class Graph:
         running = [c.name for c in self.children if c.proc.poll() is None]
         if running and self.echo:
             with self._print_lock:
-                print(f"[run_graph] stopping {', '.join(running)}", flush=True)
+                _say(f"[run_graph] stopping {', '.join(running)}")
         for child in self.children:
             if child.proc.poll() is None:
                 _signal_group(child.proc, signal.SIGINT)
@@ -572,19 +581,17 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 130
     summary = run(args, stops)
     metrics = summary["metrics"] if isinstance(summary["metrics"], dict) else {}
-    print(
+    _say(
         f"[run_graph] outcome={summary['outcome']} sim={summary['sim_time_s']:.1f}s "
         f"wall={summary['wall_time_s']:.1f}s rtf={summary['real_time_factor']} "
         f"decisions={summary['decisions']} fallbacks={summary['fallbacks']} "
         f"solve_ms={summary['mpc_solve_ms']} latency_ms={summary['control_latency_ms']} "
         f"O.C.={metrics.get('overall_cost')} "
-        f"run_dir={summary['run_dir']}",
-        flush=True,
-    )
+        f"run_dir={summary['run_dir']}")
     if summary["detail"]:
-        print(f"[run_graph] {summary['detail']}", flush=True)
+        _say(f"[run_graph] {summary['detail']}")
     for line in summary.get("warnings") or []:
-        print(f"[run_graph] warning: {line}", flush=True)
+        _say(f"[run_graph] warning: {line}")
     return EXIT_CODES.get(str(summary["outcome"]), 3)
 
 
