@@ -37,7 +37,8 @@ from pathlib import Path
 from typing import Any, Optional, Sequence
 
 METHODS = ("mpc", "lmpc-rules", "lmpc-local", "lmpc-openai", "lmpc-replay")
-COLUMNS = ("family", "seed", "method", "outcome", "collision", "fail", "time_s", "ineff",
+COLUMNS = ("family", "seed", "method", "outcome", "collision", "fail", "off_route", "time_s",
+           "ineff",
            "pen_acc", "pen_dist", "overall_cost", "decisions", "fallbacks", "steps",
            "solve_ms_median", "solve_ms_p99", "compute_ms_median", "compute_ms_p99", "wall_s",
            "detail")
@@ -143,7 +144,7 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
 def error_row(method: str, family: str, seed: int, detail: str) -> dict[str, Any]:
     row: dict[str, Any] = {c: math.nan for c in COLUMNS}
     row.update(family=family, seed=seed, method=method, outcome="error", collision=0, fail=1,
-               decisions=0, fallbacks=0, steps=0, wall_s=0.0, detail=detail)
+               off_route=0, decisions=0, fallbacks=0, steps=0, wall_s=0.0, detail=detail)
     return row
 
 
@@ -192,7 +193,10 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
     row = {
         "family": family, "seed": seed, "method": method, "outcome": result.outcome,
         "collision": int(result.outcome == "collision"),
-        "fail": int(result.outcome in ("timeout", "error")),
+        # off_route is a failure of its own (also counted in "off_route"): the ego drove
+        # onto a road not on its route (docs/METRICS.md)
+        "fail": int(result.outcome in ("timeout", "off_route", "error")),
+        "off_route": int(result.outcome == "off_route"),
         "time_s": round(m.time_s, 3), "ineff": round(m.ineff, 4), "pen_acc": round(m.pen_acc, 4),
         "pen_dist": round(m.pen_dist, 4), "overall_cost": round(m.overall_cost, 4),
         "decisions": result.decisions, "fallbacks": result.fallbacks, "steps": m.steps,
@@ -274,6 +278,7 @@ def aggregate(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]
                 "scenes": len(sel),
                 "collisions": sum(r["collision"] for r in sel),
                 "fails": sum(r["fail"] for r in sel),
+                "off_route": sum(int(r.get("off_route", 0) or 0) for r in sel),
                 # means over the scenes that produced metrics (error rows count as fails)
                 **{k: _mean(r[k] for r in sel)
                    for k in ("ineff", "time_s", "pen_acc", "pen_dist", "overall_cost")},
@@ -286,13 +291,15 @@ def aggregate(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]
 
 
 def table_md(summary: dict[str, dict[str, dict[str, Any]]]) -> str:
-    lines = ["| Scenario | Method | Coll. | Fail | Ineff | Time | Acc | Dist | O.C. | vs MPC |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| Scenario | Method | Coll. | Fail | Off route | Ineff | Time | Acc | Dist | O.C. "
+             "| vs MPC |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for family, methods in summary.items():
         for method, a in methods.items():
             change = a.get("oc_change_vs_mpc")
             lines.append(
                 f"| {family.upper()} | {method} | {a['collisions']} | {a['fails']} | "
+                f"{a.get('off_route', 0)} | "
                 f"{a['ineff']:.1f} | {a['time_s']:.1f} | {a['pen_acc']:.2f} | "
                 f"{a['pen_dist']:.2f} | {a['overall_cost']:.1f} | "
                 f"{'' if change is None or method == 'mpc' else f'{change:+.1%}'} |")
@@ -488,7 +495,7 @@ def _raise_interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
-_INT_COLUMNS = ("seed", "collision", "fail", "decisions", "fallbacks", "steps")
+_INT_COLUMNS = ("seed", "collision", "fail", "off_route", "decisions", "fallbacks", "steps")
 _TEXT_COLUMNS = ("family", "method", "outcome", "detail")
 
 

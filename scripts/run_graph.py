@@ -4,7 +4,8 @@
 Starts the nodes on simulated time, prefixes and streams their logs (and keeps
 them in the run folder), stops every child on Ctrl-C or when the episode ends,
 and writes a summary JSON. Exit code: 0 target reached, 1 collision,
-2 timeout, 3 error (a node crashed, or the episode never finished).
+2 timeout, 3 error (a node crashed, or the episode never finished), 4 off route
+(the ego drove onto a road that is not on its route).
 
     run_graph.py --scenario usi --seed 0 --planner rules --clock sync
     run_graph.py --scene examples/city.yaml --planner rules    # your own network
@@ -31,7 +32,7 @@ from pathlib import Path
 from typing import IO, Optional, Sequence
 
 SCRIPTS = Path(__file__).resolve().parent
-EXIT_CODES = {"reached": 0, "collision": 1, "timeout": 2, "error": 3}
+EXIT_CODES = {"reached": 0, "collision": 1, "timeout": 2, "error": 3, "off_route": 4}
 
 # Each node module and how its process is called in logs.
 NODE_MODULES = {
