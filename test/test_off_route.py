@@ -1,0 +1,83 @@
+"""Off-route (issue 21): a lane change required on a 5-10 m edge before a junction.
+
+On networks built with netconvert (``src/lmpc_bridge/test/short_lc_nets.py``: the ego
+enters an 8.8 m two-lane stub on one lane, its route turns from the other; the change
+to the left, to the right, and both in left-hand traffic): the planner offers the
+route and never a candidate that leaves it as "the route"; the baseline and the rules
+planner reach the target without leaving the route (the bridge would end the episode
+``off_route``), with and without background traffic for the rules planner.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from graphkit import REPO
+
+sys.path.insert(0, str(REPO / "src" / "lmpc_bridge" / "test"))
+from short_lc_nets import make_short_lc_net, route_of, scene_yaml  # noqa: E402
+
+NETS = [("inner", False), ("outer", False), ("inner", True), ("outer", True)]
+
+
+def _ids(case: tuple[str, bool]) -> str:
+    return f"{case[0]}{'-lefthand' if case[1] else ''}"
+
+
+def test_planner_offers_the_route_where_the_lane_choices_leave_it(tmp_path: Path) -> None:
+    from lmpc_bridge.mapping import build_map
+    from lmpc_bridge.scenarios.external import build_external_scene
+    from lmpc_llm_planner.scene import _route_edges_ahead, ego_candidates, leaves_route
+    from lmpc_mpc import synthetic as S
+
+    for need, lh in NETS:
+        net = make_short_lc_net(tmp_path, need=need, left_hand=lh)
+        f = tmp_path / f"{need}{lh}.yaml"
+        f.write_text(scene_yaml(net, need=need, left_hand=lh, background=False))
+        scene = build_external_scene(f, work_dir=tmp_path)
+        m, _ = build_map(scene)
+        lanes = {ln.id: ln for ln in m.lanes}
+        entry = next(ln for ln in m.lanes if ln.edge_id == "BC"
+                     and any(lk.to_lane == ln.id for lk in lanes["WB_0"].successors))
+        (x0, y0), (x1, y1) = entry.centerline[0], entry.centerline[-1]
+
+        ego = S.ego_state(x_m=0.5 * (x0 + x1), y_m=0.5 * (y0 + y1),
+                          yaw_rad=math.atan2(y1 - y0, x1 - x0), v_mps=5.0, lane_id=entry.id,
+                          route_index=next(i for i, lid in enumerate(m.ego_route)
+                                           if lanes[lid].edge_id == "BC"))
+        cands, rid = ego_candidates(S.observation(m, ego), lookahead_m=60.0)
+        ahead = _route_edges_ahead(m.ego_route, lanes, "BC")
+        assert ahead == route_of(need, lh)[2:]
+        stays = [not leaves_route(c, lanes, ahead, "BC") for c in cands]
+        # the entry lane's own junction choices all leave the route; the route is offered
+        assert stays[rid] and stays.count(True) == 1, [(c.label, c.lane_ids) for c in cands]
+        assert cands[rid].label == "follow the route"
+
+
+def _bench(scene: Path, methods: str, out: Path) -> list[dict[str, str]]:
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "benchmark.py"), "--scene",
+                           str(scene), "--methods", methods, "--workers", "2",
+                           "--out", str(out)], capture_output=True, text=True, timeout=500)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    return list(csv.DictReader((out / "results.csv").open()))
+
+
+@pytest.mark.parametrize("case", NETS, ids=_ids)
+def test_planners_reach_the_target_on_the_route(tmp_path: Path, case: tuple[str, bool]) -> None:
+    need, lh = case
+    net = make_short_lc_net(tmp_path, need=need, left_hand=lh)
+    empty = tmp_path / "empty.yaml"
+    empty.write_text(scene_yaml(net, need=need, left_hand=lh, background=False))
+    busy = tmp_path / "busy.yaml"
+    busy.write_text(scene_yaml(net, need=need, left_hand=lh, background=True))
+    rows = _bench(empty, "mpc,lmpc-rules", tmp_path / "empty")
+    rows += _bench(busy, "lmpc-rules", tmp_path / "busy")
+    assert len(rows) == 3
+    for row in rows:
+        assert row["outcome"] == "reached", row
+        assert row["off_route"] == "0" and row["collision"] == "0"
