@@ -41,7 +41,7 @@ COLUMNS = ("family", "seed", "method", "outcome", "collision", "fail", "off_rout
            "ineff",
            "pen_acc", "pen_dist", "overall_cost", "decisions", "fallbacks", "steps",
            "solve_ms_median", "solve_ms_p99", "compute_ms_median", "compute_ms_p99", "wall_s",
-           "detail")
+           "route_overrides", "detail")
 
 _SIM: Any = None  # one SumoSim per worker process (libsumo: one simulation per process)
 _SOLVER: Any = None  # one compiled MPC solver per worker (building all sizes takes ~1.5 s)
@@ -144,7 +144,7 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
 def error_row(method: str, family: str, seed: int, detail: str) -> dict[str, Any]:
     row: dict[str, Any] = {c: math.nan for c in COLUMNS}
     row.update(family=family, seed=seed, method=method, outcome="error", collision=0, fail=1,
-               off_route=0, decisions=0, fallbacks=0, steps=0, wall_s=0.0, detail=detail)
+               off_route=0, route_overrides=0, decisions=0, fallbacks=0, steps=0, wall_s=0.0, detail=detail)
     return row
 
 
@@ -186,8 +186,8 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
             raise FileNotFoundError(f"no recorded decision log {replay_log}")
     planner = make_planner(method, instruction, log_path=log_path, replay_log=replay_log,
                            replay_of=replay[1] if replay else "lmpc-local")
-    result = run_episode(sim, family=family, seed=seed,
-                         controller=MpcController(config, solver=_SOLVER),
+    controller = MpcController(config, solver=_SOLVER)
+    result = run_episode(sim, family=family, seed=seed, controller=controller,
                          planner=planner, max_time_s=max_time_s)
     m = result.metrics
     row = {
@@ -207,6 +207,8 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
         if result.compute_wall_ms else math.nan,
         "compute_ms_p99": round(percentile(result.compute_wall_ms, 0.99), 3),
         "wall_s": round(time.perf_counter() - started, 2),
+        # decisions whose candidate left the route: the MPC followed the route instead
+        "route_overrides": controller.stats().route_overrides,
         "detail": result.detail,
     }
     if replay_log is not None:
@@ -495,7 +497,8 @@ def _raise_interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
-_INT_COLUMNS = ("seed", "collision", "fail", "off_route", "decisions", "fallbacks", "steps")
+_INT_COLUMNS = ("seed", "collision", "fail", "off_route", "decisions", "fallbacks", "steps",
+                "route_overrides")
 _TEXT_COLUMNS = ("family", "method", "outcome", "detail")
 
 
