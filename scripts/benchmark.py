@@ -144,7 +144,8 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
 def error_row(method: str, family: str, seed: int, detail: str) -> dict[str, Any]:
     row: dict[str, Any] = {c: math.nan for c in COLUMNS}
     row.update(family=family, seed=seed, method=method, outcome="error", collision=0, fail=1,
-               off_route=0, route_overrides=0, decisions=0, fallbacks=0, steps=0, wall_s=0.0, detail=detail)
+               off_route=0, route_overrides=0, decisions=0, fallbacks=0, steps=0, wall_s=0.0,
+               detail=detail)
     return row
 
 

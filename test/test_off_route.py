@@ -81,3 +81,34 @@ def test_planners_reach_the_target_on_the_route(tmp_path: Path, case: tuple[str,
     for row in rows:
         assert row["outcome"] == "reached", row
         assert row["off_route"] == "0" and row["collision"] == "0"
+
+
+def test_graph_mock_always_candidate_0_follows_the_route(tmp_path: Path, domain_id: int) -> None:
+    """The real processes, a "weak LLM" (mock) that always picks candidate 0: at the stub
+    that is the entry lane's straight connection, which leaves the route. The MPC follows
+    the route instead (and logs it), so the ego reaches the target; without the route
+    guard it drove straight on and the bridge ended the episode ``off_route``."""
+    from graphkit import graph_processes, run_graph
+
+    net = make_short_lc_net(tmp_path, need="outer", left_hand=False)
+    scene = tmp_path / "short_lc.yaml"
+    scene.write_text(scene_yaml(net, need="outer", left_hand=False, background=False))
+    script = tmp_path / "always0.yaml"
+    script.write_text('- {from_s: 0.0, preset: go, ego_trajectory: 0, '
+                      'reasoning: "scripted: always candidate 0"}\n')
+    run = run_graph(tmp_path, domain_id, "--scene", str(scene), "--planner", "mock",
+                    "--mock-script", str(script), "--quiet", timeout_s=400)
+    assert run.returncode == 0, run.output[-3000:]
+    assert run.summary["outcome"] == "reached"
+    mpc_log = (tmp_path / "run" / "mpc.log").read_text()
+    assert "leaves the route" in mpc_log and "following the route instead" in mpc_log
+    assert not graph_processes(domain_id)
+
+
+def test_run_graph_exit_code_for_off_route() -> None:
+    sys.path.insert(0, str(REPO / "scripts"))
+    import run_graph as rg
+
+    assert rg.EXIT_CODES["off_route"] == 4
+    assert sorted(rg.EXIT_CODES.values()) == [0, 1, 2, 3, 4]
+    assert "4 off route" in (rg.__doc__ or "")

@@ -41,11 +41,16 @@ def far_near(left_hand: bool) -> tuple[str, str]:
 
 
 def make_short_lc_net(out_dir: Path, *, need: str, left_hand: bool = False,
-                      stub_end_x_m: float = STUB_END_X_M) -> Path:
-    """Build the network; returns the ``.net.xml`` path (see the module docstring)."""
+                      entry_turns: bool = True, stub_end_x_m: float = STUB_END_X_M) -> Path:
+    """Build the network; returns the ``.net.xml`` path (see the module docstring).
+
+    ``entry_turns=False``: the entry lane only goes straight on and the other lane goes
+    straight on or turns (the route's turn): then the ego's candidates on the entry lane
+    are "continue in lane" and "change to the left / right lane", both going straight
+    on through the junction (issue 21's "change to the left lane")."""
     if need not in ("inner", "outer"):
         raise ValueError(f"need must be 'inner' or 'outer', not {need!r}")
-    name = f"short_lc_{need}{'_lh' if left_hand else ''}"
+    name = f"short_lc_{need}{'' if entry_turns else '_st'}{'_lh' if left_hand else ''}"
     c = stub_end_x_m
     nodes = [dict(id="W", x=-150.0, y=0.0), dict(id="B", x=0.0, y=0.0, type="priority"),
              dict(id="C", x=c, y=0.0, type="priority"), dict(id="E", x=c + 150.0, y=0.0),
@@ -70,9 +75,10 @@ def make_short_lc_net(out_dir: Path, *, need: str, left_hand: bool = False,
     other = 1 - entry
     turn_from_other = far if need == "inner" else near
     turn_from_entry = near if need == "inner" else far
-    conns = [("WB", 0, "BC", entry),
-             ("BC", entry, "CE", 0), ("BC", entry, f"C{turn_from_entry}", 0),
+    conns = [("WB", 0, "BC", entry), ("BC", entry, "CE", 0),
              ("BC", other, f"C{turn_from_other}", 0)]
+    conns.append(("BC", entry, f"C{turn_from_entry}", 0) if entry_turns
+                 else ("BC", other, "CE", 0))
     con = out_dir / f"{name}.con.xml"
     con.write_text("<connections>\n" + "".join(
         f'  <connection from="{a}" to="{b}" fromLane="{i}" toLane="{j}"/>\n'

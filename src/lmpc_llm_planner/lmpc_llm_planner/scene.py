@@ -129,6 +129,9 @@ class Scene:
     all_kinematics: tuple[Kinematics, ...]
     """Every observed agent (the safety floor looks at all of them)."""
     lanes: Mapping[str, Lane]
+    leaving_ids: frozenset[int] = frozenset()
+    """Ego candidates that leave the route where it goes on (:func:`leaves_route`): never
+    "the route", and the rules' lane choice does not take them (issue 21)."""
 
     def agent(self, agent_id: str) -> Optional[AgentView]:
         for view in self.agents:
@@ -331,11 +334,19 @@ def build_scene(obs: Observation, *, lookahead_m: float, max_agents: int) -> Sce
         best = closest_heading(list(cands), k.agent.yaw_rad)
         views.append(AgentView(kin=k, candidates=cands, closest_heading_id=best.candidate_id))
     ego_c, route_id = ego_candidates(obs, lookahead_m=lookahead_m)
+    lanes = {lane.id: lane for lane in obs.map.lanes}
+    here = lanes.get(obs.ego.lane_id or "")
+    here_edge = here.edge_id if here is not None else None
+    ahead = _route_edges_ahead(obs.map.ego_route[obs.ego.route_index:], lanes, here_edge)
+    leaving = frozenset(c.candidate_id for c in ego_c
+                        if c.candidate_id != route_id
+                        and leaves_route(c, lanes, ahead, here_edge))
     return Scene(
         obs=obs,
         ego_candidates=ego_c,
         route_candidate_id=route_id,
         agents=tuple(views),
         all_kinematics=kins,
-        lanes={lane.id: lane for lane in obs.map.lanes},
+        lanes=lanes,
+        leaving_ids=leaving,
     )
