@@ -38,10 +38,11 @@ from pathlib import Path
 from typing import Any, Optional, Sequence
 
 METHODS = ("mpc", "lmpc-rules", "lmpc-local", "lmpc-openai", "lmpc-replay")
-COLUMNS = ("family", "seed", "method", "outcome", "collision", "fail", "time_s", "ineff",
+COLUMNS = ("family", "seed", "method", "outcome", "collision", "fail", "off_route", "time_s",
+           "ineff",
            "pen_acc", "pen_dist", "overall_cost", "decisions", "fallbacks", "steps",
            "solve_ms_median", "solve_ms_p99", "compute_ms_median", "compute_ms_p99", "wall_s",
-           "detail")
+           "route_overrides", "detail")
 
 _SIM: Any = None  # one SumoSim per worker process (libsumo: one simulation per process)
 _SOLVER: Any = None  # one compiled MPC solver per worker (building all sizes takes ~1.5 s)
@@ -146,7 +147,8 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
 def error_row(method: str, family: str, seed: int, detail: str) -> dict[str, Any]:
     row: dict[str, Any] = {c: math.nan for c in COLUMNS}
     row.update(family=family, seed=seed, method=method, outcome="error", collision=0, fail=1,
-               decisions=0, fallbacks=0, steps=0, wall_s=0.0, detail=detail)
+               off_route=0, route_overrides=0, decisions=0, fallbacks=0, steps=0, wall_s=0.0,
+               detail=detail)
     return row
 
 
@@ -190,8 +192,8 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
             raise FileNotFoundError(f"no recorded decision log {replay_log}")
     planner = make_planner(method, instruction, log_path=log_path, replay_log=replay_log,
                            replay_of=replay[1] if replay else "lmpc-local")
-    result = run_episode(sim, family=family, seed=seed,
-                         controller=MpcController(config, solver=_SOLVER),
+    controller = MpcController(config, solver=_SOLVER)
+    result = run_episode(sim, family=family, seed=seed, controller=controller,
                          planner=planner, max_time_s=max_time_s)
     m = result.metrics
     # external scenes: demand that never reached the episode (issue 21: a recorded file
@@ -202,7 +204,10 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
     row = {
         "family": family, "seed": seed, "method": method, "outcome": result.outcome,
         "collision": int(result.outcome == "collision"),
-        "fail": int(result.outcome in ("timeout", "error")),
+        # off_route is a failure of its own (also counted in "off_route"): the ego drove
+        # onto a road not on its route (docs/METRICS.md)
+        "fail": int(result.outcome in ("timeout", "off_route", "error")),
+        "off_route": int(result.outcome == "off_route"),
         "time_s": round(m.time_s, 3), "ineff": round(m.ineff, 4), "pen_acc": round(m.pen_acc, 4),
         "pen_dist": round(m.pen_dist, 4), "overall_cost": round(m.overall_cost, 4),
         "decisions": result.decisions, "fallbacks": result.fallbacks, "steps": m.steps,
@@ -213,6 +218,8 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
         if result.compute_wall_ms else math.nan,
         "compute_ms_p99": round(percentile(result.compute_wall_ms, 0.99), 3),
         "wall_s": round(time.perf_counter() - started, 2),
+        # decisions whose candidate left the route: the MPC followed the route instead
+        "route_overrides": controller.stats().route_overrides,
         "detail": detail,
     }
     if replay_log is not None:
@@ -284,6 +291,7 @@ def aggregate(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]
                 "scenes": len(sel),
                 "collisions": sum(r["collision"] for r in sel),
                 "fails": sum(r["fail"] for r in sel),
+                "off_route": sum(int(r.get("off_route", 0) or 0) for r in sel),
                 # means over the scenes that produced metrics (error rows count as fails)
                 **{k: _mean(r[k] for r in sel)
                    for k in ("ineff", "time_s", "pen_acc", "pen_dist", "overall_cost")},
@@ -296,13 +304,15 @@ def aggregate(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]
 
 
 def table_md(summary: dict[str, dict[str, dict[str, Any]]]) -> str:
-    lines = ["| Scenario | Method | Coll. | Fail | Ineff | Time | Acc | Dist | O.C. | vs MPC |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| Scenario | Method | Coll. | Fail | Off route | Ineff | Time | Acc | Dist | O.C. "
+             "| vs MPC |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for family, methods in summary.items():
         for method, a in methods.items():
             change = a.get("oc_change_vs_mpc")
             lines.append(
                 f"| {family.upper()} | {method} | {a['collisions']} | {a['fails']} | "
+                f"{a.get('off_route', 0)} | "
                 f"{a['ineff']:.1f} | {a['time_s']:.1f} | {a['pen_acc']:.2f} | "
                 f"{a['pen_dist']:.2f} | {a['overall_cost']:.1f} | "
                 f"{'' if change is None or method == 'mpc' else f'{change:+.1%}'} |")
@@ -514,7 +524,8 @@ def _raise_interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
-_INT_COLUMNS = ("seed", "collision", "fail", "decisions", "fallbacks", "steps")
+_INT_COLUMNS = ("seed", "collision", "fail", "off_route", "decisions", "fallbacks", "steps",
+                "route_overrides")
 _TEXT_COLUMNS = ("family", "method", "outcome", "detail")
 
 

@@ -8,7 +8,8 @@ to what lingers), and writes a summary JSON as far as the run got. A node never
 outlives this process: it is started with ``LMPC_SUPERVISOR_PID`` and ends itself
 when the supervisor dies, even by SIGKILL (``lmpc_msgs_py.supervision``).
 Exit code: 0 target reached, 1 collision, 2 timeout, 3 error (a node crashed,
-the episode never finished, or the run was stopped by a signal).
+the episode never finished, or the run was stopped by a signal), 4 off route
+(the ego drove onto a road that is not on its route).
 
     run_graph.py --scenario usi --seed 0 --planner rules --clock sync
     run_graph.py --scene examples/city.yaml --planner rules    # your own network
@@ -35,7 +36,7 @@ from pathlib import Path
 from typing import IO, Any, Optional, Sequence
 
 SCRIPTS = Path(__file__).resolve().parent
-EXIT_CODES = {"reached": 0, "collision": 1, "timeout": 2, "error": 3}
+EXIT_CODES = {"reached": 0, "collision": 1, "timeout": 2, "error": 3, "off_route": 4}
 
 # Each node module and how its process is called in logs.
 NODE_MODULES = {

@@ -3,8 +3,9 @@
 Per step: guard-clamp the control, integrate the ego's kinematic bicycle, place
 the ego in SUMO (``vehicle.moveToXY`` with ``keepRoute=2``, front bumper, SUMO
 angle), ``simulationStep()``, then check collisions with oriented boxes (SUMO
-does not detect every collision of an externally moved vehicle), the target and
-the time limit, and append to the per-step record.
+does not detect every collision of an externally moved vehicle), whether the ego
+left its route (``route_watch``: outcome ``off_route``), the target and the time
+limit, and append to the per-step record.
 
 The ego stays a normal SUMO vehicle, so other drivers' car following and
 junction logic see it (SUMO derives its speed from the displacement).
@@ -46,6 +47,7 @@ from lmpc_bridge.geometry import OrientedBox, box_gap_m, boxes_overlap
 from lmpc_bridge.mapping import RouteGeometry, build_map, read_net
 from lmpc_bridge.metrics import compute_metrics
 from lmpc_bridge.record import EpisodeRecord, NearbyVehicle, StepRecord
+from lmpc_bridge.route_watch import RouteWatch
 from lmpc_bridge.scenarios import Scene, build_scene
 
 DT_S = 0.1
@@ -78,7 +80,7 @@ _KIND_BY_VCLASS = {
     "bicycle": "bicycle", "pedestrian": "pedestrian",
 }
 
-Outcome = Literal["running", "reached", "collision", "timeout", "error"]
+Outcome = Literal["running", "reached", "collision", "timeout", "off_route", "error"]
 
 
 class SimError(RuntimeError):
@@ -152,6 +154,7 @@ class SumoSim:
         self._scene: Scene | None = None
         self._map: MapSnapshot | None = None
         self._route: RouteGeometry | None = None
+        self._watch: RouteWatch | None = None
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -255,6 +258,7 @@ class SumoSim:
                                    list(_PERSON_VARS))
         net = read_net(scene.net_file)
         self._map, self._route = build_map(scene, net=net)
+        self._watch = RouteWatch.of_net(net, scene.ego_route_edges)
         # libsumo 1.28 crashes (SIGSEGV) in getJunctionFoes at an "unregulated" junction
         # (no right-of-way data, e.g. netgenerate --spider centres): skip the query there.
         self._foes_query_ok = not any(
@@ -529,9 +533,12 @@ class SumoSim:
             solve_time_ms=None if control is None else control.solve_time_ms,
             nearby=nearby, collided_with=collided,
         ))
+        off = None if self._watch is None else self._watch.check(self._ego_lane, p.x_m, p.y_m)
         if collided is not None:
             self._collided_with = collided
             self._finish("collision", f"ego box overlaps {collided!r}")
+        elif off is not None:
+            self._finish("off_route", off.detail())
         elif self._in_target():
             self._reached_at_s = self.time_s
             self._finish("reached", "")
@@ -635,7 +642,9 @@ class SumoSim:
     def _time_metric_s(self) -> float:
         if self._reached_at_s is not None:
             return self._reached_at_s
-        if self._outcome == "timeout":
+        if self._outcome in ("timeout", "off_route"):
+            # off its route the ego never reaches the target: a failure counts the limit,
+            # so leaving the route early never scores better than a timeout
             return self._max_time_s
         return self.time_s
 

@@ -129,6 +129,9 @@ class Scene:
     all_kinematics: tuple[Kinematics, ...]
     """Every observed agent (the safety floor looks at all of them)."""
     lanes: Mapping[str, Lane]
+    leaving_ids: frozenset[int] = frozenset()
+    """Ego candidates that leave the route where it goes on (:func:`leaves_route`): never
+    "the route", and the rules' lane choice does not take them (issue 21)."""
 
     def agent(self, agent_id: str) -> Optional[AgentView]:
         for view in self.agents:
@@ -192,11 +195,49 @@ def _lane_changes_needed(here: Lane, lanes: Mapping[str, Lane], next_edge: Optio
     return best or 0
 
 
+def _route_edges_ahead(route_lanes: Sequence[str], lanes: Mapping[str, Lane],
+                       here_edge: Optional[str]) -> list[str]:
+    """The route's normal edges after the ego's edge, in order (all ahead when the ego's
+    edge is not on the route, e.g. inside a junction)."""
+    out: list[str] = []
+    for lid in route_lanes:
+        lane = lanes.get(lid)
+        if lane is not None and not lane.internal and (not out or out[-1] != lane.edge_id):
+            out.append(lane.edge_id)
+    if here_edge in out:
+        out = out[out.index(here_edge) + 1:]
+    return out
+
+
+def leaves_route(cand: Candidate, lanes: Mapping[str, Lane], route_ahead: Sequence[str],
+                 here_edge: Optional[str]) -> bool:
+    """True when ``cand`` drives onto a normal edge the route does not take next while the
+    route goes on (``route_ahead``: the route's edges after the ego's, from
+    ``_route_edges_ahead``). Beyond the route's last edge in the map anything goes."""
+    k = 0
+    for lid in cand.lane_ids:
+        lane = lanes.get(lid)
+        if lane is None or lane.internal or (k == 0 and lane.edge_id == here_edge):
+            continue
+        if k < len(route_ahead) and lane.edge_id == route_ahead[k]:
+            k += 1
+            continue
+        if k >= len(route_ahead):
+            return False
+        if k > 0 and lane.edge_id == route_ahead[k - 1]:
+            continue
+        return True
+    return False
+
+
 def ego_candidates(obs: Observation, *, lookahead_m: float) -> tuple[tuple[Candidate, ...], int]:
     """The ego's offered candidates and the index of the one following its route.
 
     When none of the nearest-lane candidates follows the route (no shared route lane
-    ahead), the route candidate is appended (or replaces the last one when three are
+    ahead), or the best of them leaves the route where the route goes on
+    (:func:`leaves_route`: near a junction the candidates are the connections of the
+    ego's *current* lane, and on a short edge the route's turn may leave from another
+    lane), the route candidate is appended (or replaces the last one when three are
     offered already), so the route is always offered.
     """
     ego = obs.ego
@@ -248,6 +289,11 @@ def ego_candidates(obs: Observation, *, lookahead_m: float) -> tuple[tuple[Candi
         need = _lane_changes_needed(here, lanes, next_edge)
         remaining_m = here.length_m - ego.lane_pos_m
         continues = remaining_m > lookahead_m + ROUTE_CHANGE_PER_LANE_M * need
+    # A candidate that leaves the route where the route goes on (a junction choice of the
+    # wrong lane before a short edge's lane change, issue 21) never counts as the route,
+    # however much of the route it shares first: then the route candidate is offered.
+    ahead_edges = _route_edges_ahead(ahead, lanes, here_edge)
+    stays = [not leaves_route(c, lanes, ahead_edges, here_edge) for c in cands]
     # Route edges reached beyond the current one decide; then staying in the ego's lane
     # when the route goes on from it: a parallel lane that leads to the route's next
     # edge follows the route as well as the route's own lane (the bridge treats
@@ -256,16 +302,17 @@ def ego_candidates(obs: Observation, *, lookahead_m: float) -> tuple[tuple[Candi
     # round); then shared route lanes, then closeness to the route polyline.
     scores = [
         (
+            stays[i],
             len(route_edges & edges(c.lane_ids)),
             continues and bool(c.lane_ids) and c.lane_ids[0] == ego.lane_id,
             len(route_set.intersection(c.lane_ids) - {ego.lane_id}),
             -_mean_distance_m(c, route_c),
         )
-        for c in cands
+        for i, c in enumerate(cands)
     ]
     best = max(range(len(cands)), key=lambda i: (scores[i], -i))
-    if scores[best][0] == 0 and not scores[best][1] and scores[best][2] == 0 \
-            and -scores[best][3] > 2.0:
+    if not stays[best] or (scores[best][1] == 0 and not scores[best][2]
+                           and scores[best][3] == 0 and -scores[best][4] > 2.0):
         # append while there is room (three offered at most): replacing the last one would
         # drop a neighbour-lane candidate the rules' lane choice needs (ego two lanes left
         # of its route lane: keep, change right, route)
@@ -287,11 +334,19 @@ def build_scene(obs: Observation, *, lookahead_m: float, max_agents: int) -> Sce
         best = closest_heading(list(cands), k.agent.yaw_rad)
         views.append(AgentView(kin=k, candidates=cands, closest_heading_id=best.candidate_id))
     ego_c, route_id = ego_candidates(obs, lookahead_m=lookahead_m)
+    lanes = {lane.id: lane for lane in obs.map.lanes}
+    here = lanes.get(obs.ego.lane_id or "")
+    here_edge = here.edge_id if here is not None else None
+    ahead = _route_edges_ahead(obs.map.ego_route[obs.ego.route_index:], lanes, here_edge)
+    leaving = frozenset(c.candidate_id for c in ego_c
+                        if c.candidate_id != route_id
+                        and leaves_route(c, lanes, ahead, here_edge))
     return Scene(
         obs=obs,
         ego_candidates=ego_c,
         route_candidate_id=route_id,
         agents=tuple(views),
         all_kinematics=kins,
-        lanes={lane.id: lane for lane in obs.map.lanes},
+        lanes=lanes,
+        leaving_ids=leaving,
     )

@@ -42,6 +42,7 @@ from lmpc_mpc.reference import (
     route_progress,
     timed_reference,
 )
+from lmpc_mpc.route_guard import RouteLeave, leaves_route
 from lmpc_mpc.solver import MpcProblem, MpcSolver, Obstacle
 
 _STOP_STATES = ("r", "y", "u")
@@ -91,6 +92,9 @@ class ControllerStats:
     over_budget: int
     """Successful solves slower than ``time_budget_s`` (wall); failures only in realtime."""
     mode: str
+    route_overrides: int = 0
+    """Decisions whose chosen candidate left the ego's route where the route goes on
+    elsewhere (``route_guard``): the MPC tracked the route reference instead."""
 
 
 _LEAD_IN_OFF_RAD = math.radians(60.0)
@@ -168,7 +172,7 @@ class MpcController:
         self._plan_age = 0
         self._counts = {"steps": 0, "solver_failures": 0, "fallbacks": 0, "shifted": 0,
                         "brakes": 0, "stale_inputs": 0, "floor_additions": 0,
-                        "hedged": 0}
+                        "hedged": 0, "route_overrides": 0}
         self._mode = "idle"
         self._solved_decision_id: Optional[str] = None
         self._ego_v_mps = 0.0
@@ -179,8 +183,12 @@ class MpcController:
         self._hedge_until: dict[str, float] = {}
         """Agent id -> sim time until which the MPC's own forecast of it stays beside the
         decision's prediction of it (see ``_problem``; held ``safety_floor_hold_s``)."""
-        self._curve: Optional[tuple[str, np.ndarray]] = None
-        """(decision id, its sampled and continued reference curve), see ``_decision_curve``."""
+        self._curve: Optional[tuple[str, np.ndarray, Optional[RouteLeave]]] = None
+        """(decision id, its sampled and continued reference curve, where its candidate
+        leaves the route or None), see ``_decision_curve``."""
+        self.route_override_note: Optional[str] = None
+        """Set (one line) when a decision's candidate left the route and the MPC took the
+        route reference instead; the node logs it and clears it."""
         self._agent_curves: dict[str, tuple[float, Optional[str], _Points]] = {}
         """Agent id -> (sim time built, lane id then, control points) of the baseline
         prediction curve (see ``_CANDIDATE_REUSE_S``)."""
@@ -235,6 +243,7 @@ class MpcController:
         self._floor_until.clear()
         self._hedge_until.clear()
         self._curve = None
+        self.route_override_note = None
         self._agent_curves.clear()
         self._route_s = None
         self._solved_decision_id = None
@@ -306,7 +315,10 @@ class MpcController:
         ref_acc = cfg.reference_accel_mps2
         ref_dec: Optional[float] = None
         ref_v_cap = veh.max_speed_mps
-        if decision is not None:
+        # a candidate that leaves the route where the route goes on is not followed: the
+        # route reference instead, with the decision's weights and speed guidance
+        leave = self._route_leave(obs, decision) if decision is not None else None
+        if decision is not None and leave is None:
             pts = self._decision_curve(obs, decision)
             # the curve starts where the ego was when the planner looked: go on from
             # the closest point ahead of the ego now
@@ -314,11 +326,16 @@ class MpcController:
             path = np.vstack([ego_xy, pts[i + 1:]]) if i + 1 < len(pts) else \
                 np.vstack([ego_xy, ego_xy + [math.cos(ego.yaw_rad), math.sin(ego.yaw_rad)]])
             ref_id = decision.ego_trajectory.candidate_id
+        else:
+            cand = route_candidate(obs.map, ego, lookahead_m=cfg.lookahead_m,
+                                   progress_m=self._progress(obs))
+            path = cand.sample(200)
+            ref_id = None
+        if decision is not None:
             weights = cfg.weights_for(decision.weights)
-            bias = (float(np.clip(decision.accel_bias_mps2, -veh.max_decel_mps2,
-                                  veh.max_accel_mps2)),
-                    float(np.clip(decision.steer_bias_rad, -veh.max_steer_rad,
-                                  veh.max_steer_rad)))
+            bias = self._decision_bias(decision)
+            if leave is not None:
+                bias = (bias[0], 0.0)  # its steer bias belongs to the manoeuvre not taken
             # the action guidance shapes the reference's speed profile too: a braking
             # bias (below the neutral interval) brakes the reference to a stop at that
             # rate, a speeding-up bias raises its acceleration. Otherwise the tracking
@@ -329,10 +346,6 @@ class MpcController:
             elif bias[0] > hi:
                 ref_acc = max(bias[0], ref_acc)
         else:
-            cand = route_candidate(obs.map, ego, lookahead_m=cfg.lookahead_m,
-                                   progress_m=self._progress(obs))
-            path = cand.sample(200)
-            ref_id = None
             weights = cfg.weights_for(None)
             bias = (0.0, 0.0)
         path = _lead_in(path, ego.x_m, ego.y_m, ego.yaw_rad)
@@ -515,6 +528,19 @@ class MpcController:
             limit[: k_last + 1] = np.minimum(limit[: k_last + 1], s_enter)
         return None if not np.any(np.isfinite(limit)) else limit
 
+    def _decision_bias(self, decision: Decision) -> tuple[float, float]:
+        veh = self.vehicle
+        return (float(np.clip(decision.accel_bias_mps2, -veh.max_decel_mps2,
+                              veh.max_accel_mps2)),
+                float(np.clip(decision.steer_bias_rad, -veh.max_steer_rad,
+                              veh.max_steer_rad)))
+
+    def _route_leave(self, obs: Observation, decision: Decision) -> Optional[RouteLeave]:
+        """Where the decision's candidate leaves the route (``route_guard``), else None;
+        checked once per decision, on the curve ``_decision_curve`` builds from it."""
+        self._decision_curve(obs, decision)
+        return None if self._curve is None else self._curve[2]
+
     def _decision_curve(self, obs: Observation, decision: Decision) -> np.ndarray:
         """The decision's reference curve, sampled, and continued past its end so that
         it covers the horizon however far the ego drives while the decision is in force:
@@ -530,6 +556,16 @@ class MpcController:
             return self._curve[1]
         pts = bezier_points(rebased_control_points(
             decision.ego_trajectory.control_points, obs.ego.x_m, obs.ego.y_m), 200)
+        # the candidate itself (not the continuation below) must stay on the route where
+        # the route goes on: a junction choice of the wrong lane turns elsewhere
+        leave = leaves_route(obs.map, pts)
+        if leave is not None:
+            self._counts["route_overrides"] += 1
+            self.route_override_note = (
+                f"decision {decision.decision_id}: candidate "
+                f"{decision.ego_trajectory.candidate_id} leaves the route "
+                f"{leave.along_m:.0f} m ahead ({leave.dist_m:.1f} m off it at "
+                f"({leave.x_m:.1f}, {leave.y_m:.1f})): following the route instead")
         d = pts[-1] - pts[-2]
         yaw = math.atan2(d[1], d[0])
         ex, ey = float(pts[-1, 0]), float(pts[-1, 1])
@@ -546,7 +582,7 @@ class MpcController:
                                         lookahead_m=look)
             more = closest_heading(cands, yaw).sample(200)
         pts = np.vstack([pts, more[1:]])
-        self._curve = (decision.decision_id, pts)
+        self._curve = (decision.decision_id, pts, leave)
         return pts
 
     def _attended(self, obs: Observation, decision: Optional[Decision]) -> list[Agent]:

@@ -195,6 +195,9 @@ class MpcNode(LmpcNode):
 
     def _compute(self, obs: Observation, now_s: float) -> None:
         ctl = self.controller.compute(obs, now_s=now_s if now_s > 0.0 else None)
+        if self.controller.route_override_note is not None:
+            self.log_event("route", self.controller.route_override_note)
+            self.controller.route_override_note = None
         if ctl.mode == "brake" and "stale" in ctl.solver_status:
             self.log_event("stale", f"braking: {ctl.solver_status}")
         if ctl.mode in ("shifted", "brake"):
@@ -273,6 +276,7 @@ class MpcNode(LmpcNode):
                                   "brakes": st.brakes, "stale_inputs": st.stale_inputs,
                                   "floor_additions": st.floor_additions,
                                   "hedged": st.hedged,
+                                  "route_overrides": st.route_overrides,
                                   "over_budget": st.over_budget})
 
 

@@ -328,7 +328,9 @@ class Control(LmpcMessage):
 
 
 # --- episode -----------------------------------------------------------------------------
-EpisodeOutcome = Literal["running", "reached", "collision", "timeout", "error"]
+EpisodeOutcome = Literal["running", "reached", "collision", "timeout", "off_route", "error"]
+"""``off_route`` (since ``EpisodeStatus@2``): the ego drove onto a road that is not on its
+route (the bridge's ``route_watch``); a failure like ``timeout``."""
 
 
 class EpisodeMetrics(_Part):
@@ -344,8 +346,11 @@ class EpisodeMetrics(_Part):
 
 
 class EpisodeStatus(LmpcMessage):
-    SCHEMA: ClassVar[str] = "lmpc/EpisodeStatus@1"
-    schema_id: Literal["lmpc/EpisodeStatus@1"] = _schema_field("lmpc/EpisodeStatus@1")
+    """Version 2 added the outcome ``off_route``: a receiver of version 1 refuses a
+    version-2 message by its schema name instead of failing on an unknown outcome."""
+
+    SCHEMA: ClassVar[str] = "lmpc/EpisodeStatus@2"
+    schema_id: Literal["lmpc/EpisodeStatus@2"] = _schema_field("lmpc/EpisodeStatus@2")
     stamp_s: Stamp
     seq: Seq
     scenario: Ident

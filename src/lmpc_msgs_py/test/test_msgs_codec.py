@@ -12,6 +12,8 @@ from lmpc_msgs_py import (
     Decision,
     DecodeError,
     EgoState,
+    EpisodeMetrics,
+    EpisodeStatus,
     SequenceGate,
     StaleMessage,
     decode,
@@ -145,7 +147,8 @@ def test_every_message_is_frozen_and_strict() -> None:
         cfg = cls.model_config
         assert cfg.get("extra") == "forbid" and cfg.get("frozen") is True
         assert cfg.get("allow_inf_nan") is False
-        assert cls.SCHEMA.startswith("lmpc/") and cls.SCHEMA.endswith("@1")
+        assert cls.SCHEMA.startswith("lmpc/")
+        assert cls.SCHEMA.endswith("@2" if cls is EpisodeStatus else "@1")
     with pytest.raises(Exception):
         ego().v_mps = 3.0  # type: ignore[misc]
 
@@ -181,3 +184,22 @@ def test_sequence_gate_survives_one_forged_huge_seq() -> None:
 def test_staleness_bound() -> None:
     assert is_stale(1.0, 1.31, 0.3)
     assert not is_stale(1.0, 1.3, 0.3)
+
+
+def test_episode_status_v2_carries_off_route_and_refuses_v1() -> None:
+    status = EpisodeStatus(stamp_s=3.0, seq=30, scenario="short_lc", seed=0,
+                           outcome="off_route", detail="left its route",
+                           metrics=EpisodeMetrics(time_s=3.0))
+    text = encode(status)
+    assert decode(text, EpisodeStatus).outcome == "off_route"
+    # a version-1 message (or a receiver's unknown outcome) is refused by name
+    old = json.loads(text)
+    old["schema"] = "lmpc/EpisodeStatus@1"
+    with pytest.raises(DecodeError) as err:
+        decode(json.dumps(old), EpisodeStatus, topic="/lmpc/episode")
+    assert err.value.field == "schema" and "EpisodeStatus@2" in err.value.reason
+    bad = json.loads(text)
+    bad["outcome"] = "lost"
+    with pytest.raises(DecodeError) as err:
+        decode(json.dumps(bad), EpisodeStatus, topic="/lmpc/episode")
+    assert err.value.field == "outcome"

@@ -694,7 +694,10 @@ class RulesBackend:
         # offered candidates per lane they move to (the first lane of their chain)
         by_lane: dict[str, int] = {}
         for c in scene.ego_candidates:
-            if not c.lane_ids:
+            if not c.lane_ids or c.candidate_id in scene.leaving_ids:
+                # a lane change (or keeping the lane) whose path then leaves the route: the
+                # route candidate makes that change instead (a short edge before a
+                # junction, issue 21), so the lane rule cannot pick it
                 continue
             first = c.lane_ids[0]
             lane = scene.lanes.get(first)

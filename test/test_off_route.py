@@ -1,0 +1,128 @@
+"""Off-route (issue 21): a lane change required on a 5-10 m edge before a junction.
+
+On networks built with netconvert (``src/lmpc_bridge/test/short_lc_nets.py``: the ego
+enters an 8.8 m two-lane stub on one lane, its route turns from the other; the change
+to the left, to the right, and both in left-hand traffic): the planner offers the
+route and never a candidate that leaves it as "the route"; the baseline and the rules
+planner reach the target without leaving the route (the bridge would end the episode
+``off_route``), with and without background traffic for the rules planner.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from graphkit import REPO
+
+sys.path.insert(0, str(REPO / "src" / "lmpc_bridge" / "test"))
+from short_lc_nets import make_short_lc_net, route_of, scene_yaml  # noqa: E402
+
+NETS = [("inner", False), ("outer", False), ("inner", True), ("outer", True)]
+"""(which lane of the stub the route's turn needs, left-hand traffic): inner = a change to
+the left in right-hand traffic, to the right in left-hand traffic; outer the other way."""
+
+
+def _ids(case: tuple[str, bool, bool]) -> str:
+    return f"{case[0]}{'-lefthand' if case[1] else ''}{'' if case[2] else '-straight-entry'}"
+
+
+def test_planner_offers_the_route_where_the_lane_choices_leave_it(tmp_path: Path) -> None:
+    from lmpc_bridge.mapping import build_map
+    from lmpc_bridge.scenarios.external import build_external_scene
+    from lmpc_llm_planner.scene import _route_edges_ahead, ego_candidates, leaves_route
+    from lmpc_mpc import synthetic as S
+
+    for need, lh, turns in [(n, lh, t) for n, lh in NETS for t in (True, False)]:
+        net = make_short_lc_net(tmp_path, need=need, left_hand=lh, entry_turns=turns)
+        f = tmp_path / f"{need}{lh}{turns}.yaml"
+        f.write_text(scene_yaml(net, need=need, left_hand=lh, background=False))
+        scene = build_external_scene(f, work_dir=tmp_path)
+        m, _ = build_map(scene)
+        lanes = {ln.id: ln for ln in m.lanes}
+        entry = next(ln for ln in m.lanes if ln.edge_id == "BC"
+                     and any(lk.to_lane == ln.id for lk in lanes["WB_0"].successors))
+        (x0, y0), (x1, y1) = entry.centerline[0], entry.centerline[-1]
+
+        ego = S.ego_state(x_m=0.5 * (x0 + x1), y_m=0.5 * (y0 + y1),
+                          yaw_rad=math.atan2(y1 - y0, x1 - x0), v_mps=5.0, lane_id=entry.id,
+                          route_index=next(i for i, lid in enumerate(m.ego_route)
+                                           if lanes[lid].edge_id == "BC"))
+        cands, rid = ego_candidates(S.observation(m, ego), lookahead_m=60.0)
+        ahead = _route_edges_ahead(m.ego_route, lanes, "BC")
+        assert ahead == route_of(need, lh)[2:]
+        stays = [not leaves_route(c, lanes, ahead, "BC") for c in cands]
+        # the entry lane's junction choices (or keep lane / change lane, both straight on)
+        # all leave the route; the route is offered
+        assert stays[rid] and stays.count(True) == 1, [(c.label, c.lane_ids) for c in cands]
+        assert cands[rid].label == "follow the route"
+        if not turns:
+            assert {c.label for c in cands} >= {"continue in lane", "follow the route"}
+
+
+def _bench(scene: Path, methods: str, out: Path) -> list[dict[str, str]]:
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "benchmark.py"), "--scene",
+                           str(scene), "--methods", methods, "--workers", "2",
+                           "--out", str(out)], capture_output=True, text=True, timeout=500)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    return list(csv.DictReader((out / "results.csv").open()))
+
+
+_KNOWN_BAD = ("outer", True, False)
+"""lmpc-rules with background traffic on this net still leaves its route (off_route,
+measured 2026-12-02, not yet understood): marked, not hidden."""
+
+
+@pytest.mark.parametrize("case", [
+    pytest.param(c, marks=pytest.mark.xfail(reason="rules + traffic: off_route, open"))
+    if c == _KNOWN_BAD else c
+    for c in [(n, lh, t) for n, lh in NETS for t in (True, False)]], ids=_ids)
+def test_planners_reach_the_target_on_the_route(tmp_path: Path,
+                                                case: tuple[str, bool, bool]) -> None:
+    need, lh, turns = case
+    net = make_short_lc_net(tmp_path, need=need, left_hand=lh, entry_turns=turns)
+    empty = tmp_path / "empty.yaml"
+    empty.write_text(scene_yaml(net, need=need, left_hand=lh, background=False))
+    busy = tmp_path / "busy.yaml"
+    busy.write_text(scene_yaml(net, need=need, left_hand=lh, background=True))
+    rows = _bench(empty, "mpc,lmpc-rules", tmp_path / "empty")
+    rows += _bench(busy, "lmpc-rules", tmp_path / "busy")
+    assert len(rows) == 3
+    for row in rows:
+        assert row["outcome"] == "reached", row
+        assert row["off_route"] == "0" and row["collision"] == "0"
+
+
+def test_graph_mock_always_candidate_0_follows_the_route(tmp_path: Path, domain_id: int) -> None:
+    """The real processes, a "weak LLM" (mock) that always picks candidate 0: at the stub
+    that is the entry lane's straight connection, which leaves the route. The MPC follows
+    the route instead (and logs it), so the ego reaches the target; without the route
+    guard it drove straight on and the bridge ended the episode ``off_route``."""
+    from graphkit import graph_processes, run_graph
+
+    net = make_short_lc_net(tmp_path, need="outer", left_hand=False)
+    scene = tmp_path / "short_lc.yaml"
+    scene.write_text(scene_yaml(net, need="outer", left_hand=False, background=False))
+    script = tmp_path / "always0.yaml"
+    script.write_text('- {from_s: 0.0, preset: go, ego_trajectory: 0, '
+                      'reasoning: "scripted: always candidate 0"}\n')
+    run = run_graph(tmp_path, domain_id, "--scene", str(scene), "--planner", "mock",
+                    "--mock-script", str(script), "--quiet", timeout_s=400)
+    assert run.returncode == 0, run.output[-3000:]
+    assert run.summary["outcome"] == "reached"
+    mpc_log = (tmp_path / "run" / "mpc.log").read_text()
+    assert "leaves the route" in mpc_log and "following the route instead" in mpc_log
+    assert not graph_processes(domain_id)
+
+
+def test_run_graph_exit_code_for_off_route() -> None:
+    sys.path.insert(0, str(REPO / "scripts"))
+    import run_graph as rg
+
+    assert rg.EXIT_CODES["off_route"] == 4
+    assert sorted(rg.EXIT_CODES.values()) == [0, 1, 2, 3, 4]
+    assert "4 off route" in (rg.__doc__ or "")
