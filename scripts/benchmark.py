@@ -231,6 +231,12 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
     result = run_episode(sim, family=family, seed=seed, controller=controller,
                          planner=planner, max_time_s=max_time_s)
     cstats = controller.stats()
+    if log_path is not None and controller.stale_log:
+        # the MPC's stale-decision check, per decision it overrode (lmpc_mpc.stale), next
+        # to the planner's records of those decisions
+        with log_path.open("a", encoding="utf-8") as fh:
+            for rec in controller.stale_log.values():
+                fh.write(json.dumps({"kind": "mpc_stale_check", **rec.as_dict()}) + "\n")
     m = result.metrics
     row = {
         "family": family, "seed": seed, "method": method, "outcome": result.outcome,
@@ -365,6 +371,8 @@ def decision_stats(log_dir: Path) -> dict[str, dict[str, dict[str, Any]]]:
         for line in path.read_text().splitlines():
             if line.strip():
                 rec = json.loads(line)
+                if rec.get("kind") == "mpc_stale_check":
+                    continue  # the MPC's record of a decision, not a planner decision
                 groups.setdefault((m["family"], m["method"], rec.get("mode", "normal")),
                                   []).append(rec)
     out: dict[str, dict[str, dict[str, Any]]] = {}

@@ -366,3 +366,63 @@ def test_close_agent_is_kept_clear_of_along_the_mpc_forecast_too(
     blind, ctrl = drive()
     assert ctrl.stats().hedged == 0
     assert min_gap_m(blind) == 0.0
+
+
+def test_a_go_that_became_unsafe_before_taking_effect_is_refused(solver: MpcSolver) -> None:
+    """Issue 23. The planner looked at t = 0 (no one coming) and said "go" (accelerate,
+    left turn); with a 2.5 s latency the decision takes effect at 2.5 s. Meanwhile a car
+    has appeared in the oncoming lane, reaching the ego's turn path while the ego would
+    be on it. The stale check (on the current state, the MPC's own forecast; the
+    decision attends nobody) re-attends the car and refuses the go: the ego stays out of
+    the oncoming lane until the car has passed, says so in ``Control.stale`` and its
+    stats, then turns. Applied as it came (check off), the stale go drives the ego into
+    the oncoming lane in front of the car."""
+    from lmpc_mpc.reference import route_candidate
+
+    m = S.four_way_junction()
+    start = (1.6, -16.0, math.pi / 2, 4.0)
+    turn = route_candidate(m, S.ego_state(x_m=start[0], y_m=start[1], yaw_rad=start[2]),
+                           lookahead_m=CFG.lookahead_m)
+    go = _decision((1.6, -16.0), stamp_s=0.0, latency_s=2.5, ttl_s=30.0,
+                   accel_idx=len(CFG.accel_intervals_mps2) - 1)
+    go = go.model_copy(update={"ego_trajectory": BezierTrajectory(
+        candidate_id=turn.candidate_id, control_points=turn.control_points),
+        "attention": ()})
+    assert go.accel_bias_mps2 > 1.0
+
+    def oncoming(t: float) -> list[Agent]:
+        if t < 1.0:
+            return []  # not there when the planner looked
+        y = 45.0 - 10.0 * (t - 1.0)
+        return [S.agent("on", x_m=-1.6, y_m=y, yaw_rad=-math.pi / 2, v_mps=10.0,
+                        lane_id="N_in_0" if y > 8.0 else ":J_3_0")]
+
+    def drive(check: bool) -> tuple[list, MpcController]:
+        cfg = CFG.model_copy(update={"stale_decision_check": check})
+        solver.reset()
+        ctrl = MpcController(cfg, solver=solver)
+        ctrl.on_decision(go)
+        return _run(ctrl, m, start, 110, oncoming), ctrl
+
+    def in_front_of_the_car(log) -> list[float]:
+        """Times the ego was in the oncoming lane while the car was near it."""
+        out = []
+        for t, x, _ in log:
+            for a in oncoming(t + CFG.dt_s):
+                if x[0] < 0.5 and -6.0 < a.y_m - x[1] < 25.0:
+                    out.append(round(t, 1))
+        return out
+
+    log, ctrl = drive(True)
+    assert in_front_of_the_car(log) == []
+    refused = [c for t, _, c in log if "go" in c.stale]
+    assert refused and all(c.decision_id == go.decision_id for c in refused)
+    assert min(t for t, _, c in log if c.stale) >= 2.5 - 1e-9  # only once in force
+    assert "on" in refused[0].stale
+    st = ctrl.stats()
+    assert st.go_refused > 0 and st.stale_steps >= st.go_refused
+    assert ctrl.stale_log[go.decision_id].go_refused_steps == st.go_refused
+    assert log[-1][1][0] < -3.0  # and it did turn once the car had passed
+    blind, ctrl = drive(False)
+    assert ctrl.stats().stale_steps == 0
+    assert in_front_of_the_car(blind)
