@@ -3,8 +3,9 @@
 Parameters (mapped once into ``PlannerConfig``): ``config_file`` ('' = packaged
 default), ``backend`` ('' = from the file), ``ego_id`` ('' = single ego),
 ``run_dir`` (decision log at ``run_dir/decisions.jsonl`` when set),
-``decision_latency_s`` / ``emergency_latency_s`` (a simulated latency, < 0 = from the
-file; ``config.latency_overrides``), and ROS's own ``use_sim_time``. Topics and timing: see ``decision_node.py``.
+``decision_latency_s`` / ``emergency_latency_s`` (a simulated latency, < 0 = from
+the file; ``config.latency_overrides``), and ROS's own ``use_sim_time``.
+Topics and timing: see ``decision_node.py``.
 """
 from __future__ import annotations
 
