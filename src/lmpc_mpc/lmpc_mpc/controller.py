@@ -222,6 +222,8 @@ class MpcController:
         sim time, steps, agents, go refused steps): for the decision log."""
         self._yielded: list[str] = []
         """Agents the crossing rule of the last ``_lead_limits`` call yielded to."""
+        self._passing: list[str] = []
+        """Agents the crossing rule of the last ``_lead_limits`` call passes ahead of."""
         self._zones: list[tuple[str, float, float]] = []
         """(agent id, arc length where its conflict zone starts, its speed) of every
         crossing agent of the last ``_lead_limits`` call."""
@@ -439,12 +441,14 @@ class MpcController:
             ref_acc = cfg.reference_accel_mps2
         elif check and bias[0] < neutral_lo:
             # the decision brakes (to stop before a junction, say), but braking at its
-            # rate now ends inside the zone where a moving vehicle crosses the ego's path:
-            # the stop it planned is no longer reachable (a yield decided 2.5 s and 35 m
-            # earlier). The MPC's own crossing rule decides instead (commit or yield)
+            # rate now ends inside the zone where a moving vehicle crosses the ego's path,
+            # and the MPC's own crossing rule passes ahead of that vehicle (too close to
+            # stop comfortably before its zone): the stop the decision planned is no
+            # longer reachable (a yield decided 2.5 s and 35 m earlier). The MPC's own
+            # behaviour applies instead
             stop_m = ego.v_mps ** 2 / (2.0 * max(-bias[0], 0.5))
             stop_refused = tuple(oid for oid, lo, v in self._zones
-                                 if v >= _MOVING_MPS and lo < stop_m)
+                                 if v >= _MOVING_MPS and lo < stop_m and oid in self._passing)
             if stop_refused:
                 bias = (0.0, bias[1])
                 ref_v_cap, ref_dec = veh.max_speed_mps, None
@@ -553,6 +557,7 @@ class MpcController:
             crossing_at.append((i, crossing[-1]))
         comfort_m = self._ego_v_mps ** 2 / (2.0 * _COMFORT_DECEL_MPS2)
         self._yielded = []
+        self._passing = []
         self._zones = [(oid.removesuffix(OWN_SUFFIX), lo, speeds_mps[i])
                        for i, (oid, lo, _, _) in crossing_at]
         for oid, s_enter, _, k_last in crossing:
@@ -568,10 +573,12 @@ class MpcController:
             if since is not None and 0.0 <= self._now_s - since <= _COMMIT_HOLD_S:
                 # committed earlier: as the ego slows, the comfortable stopping distance
                 # shrinks below s_enter; yielding then would stop it half-way, so hold on
+                self._passing.append(oid.removesuffix(OWN_SUFFIX))
                 continue
             if s_enter < comfort_m:
                 # too close to stop comfortably: commit (pass ahead of it)
                 self._committed[oid] = self._now_s
+                self._passing.append(oid.removesuffix(OWN_SUFFIX))
                 continue
             # stay out of the conflict zone until it has left (plus one headway)
             limit[: k_last + 1] = np.minimum(limit[: k_last + 1], s_enter)

@@ -18,8 +18,10 @@ controller (``MpcController._stale_check``) applies the verdicts:
   agent: the gap the decision relied on has closed;
 - a braking bias is refused (neutral, the reference no longer brought to a stop) when
   braking at its rate would stop the ego beyond the start of the conflict zone of a
-  moving vehicle (>= 2 m/s): the stop the decision planned (before the junction) is no
-  longer reachable, and the MPC's own crossing rule decides (commit or yield).
+  moving vehicle (>= 2 m/s) that the MPC's own crossing rule passes ahead of (the ego
+  is too close to stop comfortably before that zone): the stop the decision planned
+  (before the junction) is no longer reachable, and stopping would leave the ego in
+  the vehicle's way.
 
 Everything else the decision chose (reference curve, weights, a braking bias, the
 other agents' predictions) still applies. An APPROXIMATION like the rest of the MPC's
