@@ -44,8 +44,8 @@ def _row(run: Path, family: str, seed: int) -> dict[str, str]:
 @pytest.mark.parametrize("family,seed", [
     pytest.param(f, s, marks=pytest.mark.xfail(strict=True, reason="still collides"))
     if (f, s) in STILL_COLLIDES else (f, s) for f, s in SCENES])
-def test_scene_reaches_without_collision_at_2_5_s(latency_run: Path, family: str,
-                                                 seed: int) -> None:
+def test_scene_reaches_without_collision_at_2_5_s(
+        latency_run: Path, family: str, seed: int) -> None:
     row = _row(latency_run, family, seed)
     assert (row["latency_s"], row["emergency_latency_s"]) == ("2.5", "1.5")
     assert row["outcome"] == "reached", row
