@@ -70,9 +70,6 @@ the route (``MpcController._decision_curve``)."""
 _HEDGE_APART_M = 0.5
 """A close agent's own forecast is added beside the decision's prediction of it when the
 two are farther apart than this at some step (see ``MpcController._problem``)."""
-_MOVING_MPS = 2.0
-"""A stale braking decision is refused only for zones of agents at least this fast (a
-vehicle that would arrive where the ego stops; a pedestrian in the path is braked for)."""
 _COMMIT_HOLD_S = 6.0
 """Once the ego commits to pass ahead of a crossing agent, it keeps that commitment this
 long (sim time) while the agent stays a conflict, so it does not stop half-way."""
@@ -103,9 +100,6 @@ class ControllerStats:
     """Agent-steps an agent was re-attended with the MPC's own forecast (stale check)."""
     go_refused: int = 0
     """Steps on which a decision's "go" bias was refused (the MPC's crossing rule yields)."""
-    stop_refused: int = 0
-    """Steps on which a decision's braking bias was refused (it would stop the ego in a
-    moving vehicle's conflict zone)."""
 
 
 _LEAD_IN_OFF_RAD = math.radians(60.0)
@@ -184,7 +178,7 @@ class MpcController:
         self._counts = {"steps": 0, "solver_failures": 0, "fallbacks": 0, "shifted": 0,
                         "brakes": 0, "stale_inputs": 0, "floor_additions": 0,
                         "hedged": 0, "stale_steps": 0, "stale_agent_steps": 0,
-                        "go_refused": 0, "stop_refused": 0}
+                        "go_refused": 0}
         self._mode = "idle"
         self._solved_decision_id: Optional[str] = None
         self._ego_v_mps = 0.0
@@ -222,11 +216,6 @@ class MpcController:
         sim time, steps, agents, go refused steps): for the decision log."""
         self._yielded: list[str] = []
         """Agents the crossing rule of the last ``_lead_limits`` call yielded to."""
-        self._passing: list[str] = []
-        """Agents the crossing rule of the last ``_lead_limits`` call passes ahead of."""
-        self._zones: list[tuple[str, float, float]] = []
-        """(agent id, arc length where its conflict zone starts, its speed) of every
-        crossing agent of the last ``_lead_limits`` call."""
 
     # -- decisions -----------------------------------------------------------------------
     def on_decision(self, decision: Decision) -> None:
@@ -430,8 +419,7 @@ class MpcController:
                                               speeds)
         s_limit = self._lead_limits(coarse, obstacles, speeds)
         refused: tuple[str, ...] = ()
-        stop_refused: tuple[str, ...] = ()
-        neutral_lo, neutral_hi = cfg.accel_intervals_mps2[cfg.neutral_accel_index]
+        neutral_hi = cfg.accel_intervals_mps2[cfg.neutral_accel_index][1]
         if check and bias[0] > neutral_hi and self._yielded:
             # the decision says go, the MPC's own crossing rule (on the current state)
             # yields: the gap the decision relied on has closed. Neutral bias and
@@ -439,21 +427,7 @@ class MpcController:
             refused = tuple(self._yielded)
             bias = (0.0, bias[1])
             ref_acc = cfg.reference_accel_mps2
-        elif check and bias[0] < neutral_lo:
-            # the decision brakes (to stop before a junction, say), but braking at its
-            # rate now ends inside the zone where a moving vehicle crosses the ego's path,
-            # and the MPC's own crossing rule passes ahead of that vehicle (too close to
-            # stop comfortably before its zone): the stop the decision planned is no
-            # longer reachable (a yield decided 2.5 s and 35 m earlier). The MPC's own
-            # behaviour applies instead
-            stop_m = ego.v_mps ** 2 / (2.0 * max(-bias[0], 0.5))
-            stop_refused = tuple(oid for oid, lo, v in self._zones
-                                 if v >= _MOVING_MPS and lo < stop_m and oid in self._passing)
-            if stop_refused:
-                bias = (0.0, bias[1])
-                ref_v_cap, ref_dec = veh.max_speed_mps, None
-        self._note_stale(decision, StaleVerdict(reattended=reattended, go_refused_for=refused,
-                                                stop_refused_for=stop_refused))
+        self._note_stale(decision, StaleVerdict(reattended=reattended, go_refused_for=refused))
         ref = timed_reference(path, v0_mps=ego.v_mps, v_max_mps=min(v_limit, ref_v_cap),
                               a_max_mps2=ref_acc, a_dec_mps2=ref_dec,
                               a_lat_max_mps2=cfg.reference_lat_accel_mps2, horizon=n,
@@ -538,7 +512,6 @@ class MpcController:
         s_all = s_all.reshape(len(obstacles), n + 1)
         d_all = d_all.reshape(len(obstacles), n + 1)
         crossing: list[tuple[str, float, float, int]] = []
-        crossing_at: list[tuple[int, tuple[str, float, float, int]]] = []
         for i, (ob, v) in enumerate(zip(obstacles, speeds_mps)):
             lat_clear = 0.5 * (veh.width_m + ob.width_m) + cfg.safety_lateral_gap_m
             gap = cfg.safety_gap_m + 0.5 * (veh.length_m + ob.length_m)
@@ -554,12 +527,8 @@ class MpcController:
             k_last = min(n, int(np.max(np.nonzero(on)[0])) + hold_steps)
             crossing.append((ob.obstacle_id, float(np.min(s_k[on])) - gap,
                              float(np.max(s_k[on])) + gap, k_last))
-            crossing_at.append((i, crossing[-1]))
         comfort_m = self._ego_v_mps ** 2 / (2.0 * _COMFORT_DECEL_MPS2)
         self._yielded = []
-        self._passing = []
-        self._zones = [(oid.removesuffix(OWN_SUFFIX), lo, speeds_mps[i])
-                       for i, (oid, lo, _, _) in crossing_at]
         for oid, s_enter, _, k_last in crossing:
             # never plan to stop inside another crossing agent's zone (blocking the
             # junction): stop before that zone instead (our rule, see docs)
@@ -573,12 +542,10 @@ class MpcController:
             if since is not None and 0.0 <= self._now_s - since <= _COMMIT_HOLD_S:
                 # committed earlier: as the ego slows, the comfortable stopping distance
                 # shrinks below s_enter; yielding then would stop it half-way, so hold on
-                self._passing.append(oid.removesuffix(OWN_SUFFIX))
                 continue
             if s_enter < comfort_m:
                 # too close to stop comfortably: commit (pass ahead of it)
                 self._committed[oid] = self._now_s
-                self._passing.append(oid.removesuffix(OWN_SUFFIX))
                 continue
             # stay out of the conflict zone until it has left (plus one headway)
             limit[: k_last + 1] = np.minimum(limit[: k_last + 1], s_enter)
@@ -634,7 +601,6 @@ class MpcController:
         self._counts["stale_steps"] += 1
         self._counts["stale_agent_steps"] += len(verdict.reattended)
         self._counts["go_refused"] += int(bool(verdict.go_refused_for))
-        self._counts["stop_refused"] += int(bool(verdict.stop_refused_for))
         rec = self.stale_log.get(decision.decision_id)
         if rec is None:
             rec = self.stale_log[decision.decision_id] = StaleRecord(

@@ -270,6 +270,9 @@ class MpcNode(LmpcNode):
                                   "brakes": st.brakes, "stale_inputs": st.stale_inputs,
                                   "floor_additions": st.floor_additions,
                                   "hedged": st.hedged,
+                                  "stale_steps": st.stale_steps,
+                                  "stale_agent_steps": st.stale_agent_steps,
+                                  "go_refused": st.go_refused,
                                   "over_budget": st.over_budget})
 
 

@@ -15,13 +15,12 @@ controller (``MpcController._stale_check``) applies the verdicts:
 - a "go" (an acceleration bias above the neutral interval) is refused, i.e. the bias
   and the raised reference acceleration fall back to neutral, while the MPC's own
   crossing rule (``MpcController._lead_limits``, on its own forecasts) yields to some
-  agent: the gap the decision relied on has closed;
-- a braking bias is refused (neutral, the reference no longer brought to a stop) when
-  braking at its rate would stop the ego beyond the start of the conflict zone of a
-  moving vehicle (>= 2 m/s) that the MPC's own crossing rule passes ahead of (the ego
-  is too close to stop comfortably before that zone): the stop the decision planned
-  (before the junction) is no longer reachable, and stopping would leave the ego in
-  the vehicle's way.
+  agent: the gap the decision relied on has closed.
+
+The check only ever adds caution: it never refuses a braking bias (it cannot know what
+the decision brakes for; a version that refused a braking whose stop would land in a
+moving vehicle's zone fixed usi 14 at 2.5 s but refused an emergency braking for a
+pedestrian in si 20: docs/lmpc_mpc.md, "Stale decisions").
 
 Everything else the decision chose (reference curve, weights, a braking bias, the
 other agents' predictions) still applies. An APPROXIMATION like the rest of the MPC's
@@ -47,20 +46,16 @@ class StaleVerdict:
     """Agents added with the MPC's own forecast (dropped or mispredicted by the decision)."""
     go_refused_for: tuple[str, ...] = ()
     """Agents the MPC's own crossing rule yields to while the decision says go."""
-    stop_refused_for: tuple[str, ...] = ()
-    """Moving vehicles in whose conflict zone the decision's braking would stop the ego."""
 
     @property
     def fired(self) -> bool:
-        return bool(self.reattended or self.go_refused_for or self.stop_refused_for)
+        return bool(self.reattended or self.go_refused_for)
 
     def labels(self) -> tuple[str, ...]:
-        """For ``Control.stale``: the agents fallen back for, then ``go`` / ``stop`` if
-        the decision's go / braking bias was refused."""
-        out = list(dict.fromkeys(self.reattended + self.go_refused_for
-                                 + self.stop_refused_for))
-        return tuple(out + (["go"] if self.go_refused_for else [])
-                     + (["stop"] if self.stop_refused_for else []))
+        """For ``Control.stale``: the agents fallen back for, then ``go`` if the
+        decision's go bias was refused."""
+        out = list(dict.fromkeys(self.reattended + self.go_refused_for))
+        return tuple(out + (["go"] if self.go_refused_for else []))
 
 
 def reach_m(v0_mps: float, *, accel_mps2: float, horizon_s: float) -> float:
@@ -87,19 +82,16 @@ class StaleRecord:
     last_s: float = 0.0
     steps: int = 0
     go_refused_steps: int = 0
-    stop_refused_steps: int = 0
     agents: list[str] = field(default_factory=list)
 
     def add(self, t_s: float, verdict: StaleVerdict) -> None:
         self.last_s = t_s
         self.steps += 1
         self.go_refused_steps += int(bool(verdict.go_refused_for))
-        self.stop_refused_steps += int(bool(verdict.stop_refused_for))
         self.agents.extend(a for a in verdict.labels()
-                           if a not in ("go", "stop") and a not in self.agents)
+                           if a != "go" and a not in self.agents)
 
     def as_dict(self) -> dict[str, Any]:
         return {"decision_id": self.decision_id, "first_s": round(self.first_s, 3),
                 "last_s": round(self.last_s, 3), "steps": self.steps,
-                "go_refused_steps": self.go_refused_steps,
-                "stop_refused_steps": self.stop_refused_steps, "agents": list(self.agents)}
+                "go_refused_steps": self.go_refused_steps, "agents": list(self.agents)}
