@@ -13,6 +13,12 @@ decision log in ``decisions/<family>-<seed>-<method>.jsonl``.
     benchmark.py --scene examples/city.yaml --seeds 0-4   # five scenes: SUMO + traffic seeds
     benchmark.py --families lane --methods lmpc-rules --instruction "drive aggressively"
     benchmark.py --families eoa --methods lmpc-replay --replay-from runs/bench_local  # repeat
+    benchmark.py --families si --methods lmpc-rules --decision-latency 2.5  # a slow LLM
+
+``--decision-latency S`` simulates a planner whose decisions take effect S seconds (sim
+time) after the observation they used, whatever the backend (the rules reasoner too);
+emergency decisions get ``--emergency-latency`` (default min(S, 1.5 s), the paper's
+short emergency path). Both are recorded per row and in summary.json.
 
 ``lmpc-replay`` repeats a finished run's LLM decisions without the model: each scene
 answers from that run's decision log of the scene, matching prompts by hash, with the
@@ -42,7 +48,12 @@ COLUMNS = ("family", "seed", "method", "outcome", "collision", "fail", "off_rout
            "ineff",
            "pen_acc", "pen_dist", "overall_cost", "decisions", "fallbacks", "steps",
            "solve_ms_median", "solve_ms_p99", "compute_ms_median", "compute_ms_p99", "wall_s",
-           "route_overrides", "detail")
+           "route_overrides", "latency_s", "emergency_latency_s", "stale_steps",
+           "stale_agent_steps", "detail")
+"""``latency_s`` / ``emergency_latency_s``: the simulated decision latencies of the run
+(empty: the backend's own, e.g. 0 for rules; always empty for ``mpc``); ``stale_steps`` /
+``stale_agent_steps``: steps on which the MPC found the decision in force stale for some
+agent, and agent-steps it fell back for (``MpcController`` stats ``stale_*``)."""
 
 _SIM: Any = None  # one SumoSim per worker process (libsumo: one simulation per process)
 _SOLVER: Any = None  # one compiled MPC solver per worker (building all sizes takes ~1.5 s)
@@ -72,16 +83,23 @@ def percentile(values: Sequence[float], q: float) -> float:
 
 def make_planner(method: str, instruction: Optional[str] = None, *,
                  log_path: Optional[Path] = None, replay_log: Optional[Path] = None,
-                 replay_of: str = "lmpc-local") -> Any:
+                 replay_of: str = "lmpc-local",
+                 latency: tuple[Optional[float], Optional[float]] = (None, None)) -> Any:
     """The planner core of ``method`` (None for the ``mpc`` baseline); ``instruction``
     reaches it as the user's text through ``PlannerCore.on_instruction``, as the node's
     ``/lmpc/instruction`` subscription does; ``log_path``: its JSON-lines decision log.
     ``lmpc-replay`` answers from ``replay_log`` (prompts matched by hash only) with the
-    planner settings of the method that recorded it, ``replay_of``."""
+    planner settings of the method that recorded it, ``replay_of``. ``latency``: (decision,
+    emergency) latency to simulate, s (None: the config's), see
+    ``lmpc_llm_planner.config.latency_overrides``."""
     if method == "mpc":
         return None
     from lmpc_llm_planner.backends import make_backend
-    from lmpc_llm_planner.config import LOCAL_CONFIG_PATH, load_planner_config
+    from lmpc_llm_planner.config import (
+        LOCAL_CONFIG_PATH,
+        latency_overrides,
+        load_planner_config,
+    )
     from lmpc_llm_planner.planner import PlannerCore
     from lmpc_mpc.config import load_mpc_config
 
@@ -97,8 +115,11 @@ def make_planner(method: str, instruction: Optional[str] = None, *,
         settings_of = replay_of.removeprefix("lmpc-")
     # The small local model needs its own config (a deadline it can meet on a small CPU,
     # a simulated latency: config/planner_local.yaml says why), or every call times out.
-    config = load_planner_config(LOCAL_CONFIG_PATH if settings_of == "local" else None,
-                                 overrides=overrides)
+    path = LOCAL_CONFIG_PATH if settings_of == "local" else None
+    if latency != (None, None):
+        base = load_planner_config(path, overrides=overrides)
+        overrides.update(latency_overrides(*latency, period_s=base.period_s, ttl_s=base.ttl_s))
+    config = load_planner_config(path, overrides=overrides)
     core = PlannerCore(config, make_backend(config), load_mpc_config(), log_path=log_path)
     if instruction:
         core.on_instruction(instruction)
@@ -124,7 +145,9 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
               instruction: Optional[str] = None,
               log_dir: Optional[str] = None,
               replay: Optional[tuple[str, str]] = None,
-              scene_seed: bool = False) -> dict[str, Any]:
+              scene_seed: bool = False,
+              latency: tuple[Optional[float], Optional[float]] = (None, None)
+              ) -> dict[str, Any]:
     """One episode in this worker process; returns its results row.
 
     With ``scene_file`` the episode runs that scene description (``family`` and
@@ -135,28 +158,48 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
     where the planner's decision log of the scene goes (``<family>-<seed>-<method>.jsonl``);
     ``replay``: (run folder, recorded method) whose log of the scene ``lmpc-replay`` answers
     from (the row then also carries ``replay_answered`` / ``replay_unmatched``, the prompts
-    found in the log and not, which ``results.csv`` does not keep).
+    found in the log and not, which ``results.csv`` does not keep); ``latency``: the
+    (decision, emergency) latency to simulate (``make_planner``).
     """
     try:
         return _run_scene(method, family, seed, work_dir, scene_file, instruction, log_dir,
-                          replay, scene_seed)
+                          replay, scene_seed, latency)
     except Exception as exc:  # noqa: BLE001 - one broken scene must not end the run
-        return error_row(method, family, seed, f"{type(exc).__name__}: {exc}")
+        return error_row(method, family, seed, f"{type(exc).__name__}: {exc}", latency)
 
 
-def error_row(method: str, family: str, seed: int, detail: str) -> dict[str, Any]:
+def error_row(method: str, family: str, seed: int, detail: str,
+              latency: tuple[Optional[float], Optional[float]] = (None, None)
+              ) -> dict[str, Any]:
     row: dict[str, Any] = {c: math.nan for c in COLUMNS}
     row.update(family=family, seed=seed, method=method, outcome="error", collision=0, fail=1,
                off_route=0, route_overrides=0, decisions=0, fallbacks=0, steps=0, wall_s=0.0,
-               detail=detail)
+               detail=detail, stale_steps=0, stale_agent_steps=0,
+               **latency_cells(method, latency))
     return row
+
+
+def latency_cells(method: str, latency: tuple[Optional[float], Optional[float]]
+                  ) -> dict[str, Any]:
+    """The row's latency columns: what the run simulated (empty for ``mpc``, which has no
+    planner, and where the backend's own latency applies)."""
+    dec, emg = latency
+    if method == "mpc" or (dec is None and emg is None):
+        return {"latency_s": "", "emergency_latency_s": ""}
+    if dec is not None and emg is None:
+        from lmpc_llm_planner.config import DEFAULT_EMERGENCY_LATENCY_S
+
+        emg = min(dec, DEFAULT_EMERGENCY_LATENCY_S)
+    return {"latency_s": "" if dec is None else dec, "emergency_latency_s": emg}
 
 
 def _run_scene(method: str, family: str, seed: int, work_dir: str,
                scene_file: Optional[str], instruction: Optional[str] = None,
                log_dir: Optional[str] = None,
                replay: Optional[tuple[str, str]] = None,
-               scene_seed: bool = False) -> dict[str, Any]:
+               scene_seed: bool = False,
+               latency: tuple[Optional[float], Optional[float]] = (None, None)
+               ) -> dict[str, Any]:
     global _SIM, _SOLVER
     from lmpc_bridge.runner import run_episode
     from lmpc_bridge.sim import SumoSim
@@ -191,10 +234,17 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
         if not replay_log.is_file():
             raise FileNotFoundError(f"no recorded decision log {replay_log}")
     planner = make_planner(method, instruction, log_path=log_path, replay_log=replay_log,
-                           replay_of=replay[1] if replay else "lmpc-local")
+                           replay_of=replay[1] if replay else "lmpc-local", latency=latency)
     controller = MpcController(config, solver=_SOLVER)
     result = run_episode(sim, family=family, seed=seed, controller=controller,
                          planner=planner, max_time_s=max_time_s)
+    cstats = controller.stats()
+    if log_path is not None and controller.stale_log:
+        # the MPC's stale-decision check, per decision it overrode (lmpc_mpc.stale), next
+        # to the planner's records of those decisions
+        with log_path.open("a", encoding="utf-8") as fh:
+            for rec in controller.stale_log.values():
+                fh.write(json.dumps({"kind": "mpc_stale_check", **rec.as_dict()}) + "\n")
     m = result.metrics
     # external scenes: demand that never reached the episode (issue 21: a recorded file
     # starting at 7:00 on a scene starting at 0 "reached" with every penalty 0)
@@ -219,7 +269,9 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
         "compute_ms_p99": round(percentile(result.compute_wall_ms, 0.99), 3),
         "wall_s": round(time.perf_counter() - started, 2),
         # decisions whose candidate left the route: the MPC followed the route instead
-        "route_overrides": controller.stats().route_overrides,
+        "route_overrides": cstats.route_overrides,
+        "stale_steps": cstats.stale_steps, "stale_agent_steps": cstats.stale_agent_steps,
+        **latency_cells(method, latency),
         "detail": detail,
     }
     if replay_log is not None:
@@ -295,6 +347,11 @@ def aggregate(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]
                 # means over the scenes that produced metrics (error rows count as fails)
                 **{k: _mean(r[k] for r in sel)
                    for k in ("ineff", "time_s", "pen_acc", "pen_dist", "overall_cost")},
+                # how often the MPC found the decision in force stale (MpcController)
+                "stale_scenes": sum(1 for r in sel if (r.get("stale_steps") or 0) > 0),
+                "stale_steps": sum(int(r.get("stale_steps") or 0) for r in sel),
+                "steps": sum(int(r.get("steps") or 0) for r in sel
+                             if isinstance(r.get("steps"), int)),
             }
         base = out[family].get("mpc")
         for method, agg in out[family].items():
@@ -335,6 +392,8 @@ def decision_stats(log_dir: Path) -> dict[str, dict[str, dict[str, Any]]]:
         for line in path.read_text().splitlines():
             if line.strip():
                 rec = json.loads(line)
+                if rec.get("kind") == "mpc_stale_check":
+                    continue  # the MPC's record of a decision, not a planner decision
                 groups.setdefault((m["family"], m["method"], rec.get("mode", "normal")),
                                   []).append(rec)
     out: dict[str, dict[str, dict[str, Any]]] = {}
@@ -401,6 +460,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--replay-of", default="lmpc-local", metavar="METHOD",
                     help="lmpc-replay: the recorded method (its logs and planner settings; "
                          "default lmpc-local)")
+    ap.add_argument("--decision-latency", type=float, metavar="S",
+                    help="simulate a planner latency: every decision takes effect S s (sim "
+                         "time) after its observation, whatever the backend (rules too; "
+                         "ttl raised to S + period where needed); default: the config's")
+    ap.add_argument("--emergency-latency", type=float, metavar="S",
+                    help="the latency of emergency decisions (default with "
+                         "--decision-latency: min(S, 1.5), the paper's emergency path)")
     ap.add_argument("--decision-stats", type=Path, metavar="DIR",
                     help="only print the planner figures of a finished run folder "
                          "(DIR/decisions/*.jsonl) and write DIR/decisions.md")
@@ -428,6 +494,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             ap.error(f"--replay-of {args.replay_of!r}: the method that recorded the logs, "
                      "one of lmpc-rules, lmpc-local, lmpc-openai")
         replay = (str(args.replay_from.resolve()), args.replay_of)
+    for name in ("decision_latency", "emergency_latency"):
+        value = getattr(args, name)
+        if value is not None and not (0.0 <= value <= 600.0):
+            ap.error(f"--{name.replace('_', '-')} must be within 0..600 s, got {value}")
+    latency = (args.decision_latency, args.emergency_latency)
     args.out.mkdir(parents=True, exist_ok=True)
     work_dir = tempfile.mkdtemp(prefix="lmpc-bench-")
     jobs = [(m, f, s) for f in families for s in args.seeds for m in methods]
@@ -448,7 +519,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     rows: list[dict[str, Any]] = []
     if args.resume:
         try:
-            rows = read_rows(args.out / "results.csv", set(jobs))
+            rows = read_rows(args.out / "results.csv", set(jobs), latency=latency)
         except (OSError, ValueError, KeyError) as exc:
             print(f"benchmark: --resume: cannot read {args.out / 'results.csv'}: {exc}",
                   file=sys.stderr)
@@ -466,14 +537,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     pool = ProcessPoolExecutor(max_workers=max(1, args.workers))
     try:
         futures = {pool.submit(run_scene, m, f, s, work_dir, scene_file, args.instruction,
-                               str(log_dir), replay, scene_seeds): (m, f, s)
+                               str(log_dir), replay, scene_seeds, latency): (m, f, s)
                    for m, f, s in jobs}
         for fut in as_completed(futures):
             m, f, s = futures[fut]
             try:
                 row = fut.result()
             except Exception as exc:  # noqa: BLE001 - e.g. a worker process that died
-                row = error_row(m, f, s, f"{type(exc).__name__}: {exc}")
+                row = error_row(m, f, s, f"{type(exc).__name__}: {exc}", latency)
             rows.append(row)
             write_rows(args.out / "results.csv", rows)  # a long run keeps every finished scene
             done = len(rows) - kept
@@ -525,14 +596,17 @@ def _raise_interrupt(signum: int, frame: Any) -> None:
 
 
 _INT_COLUMNS = ("seed", "collision", "fail", "off_route", "decisions", "fallbacks", "steps",
-                "route_overrides")
-_TEXT_COLUMNS = ("family", "method", "outcome", "detail")
+                "route_overrides", "stale_steps", "stale_agent_steps")
+_TEXT_COLUMNS = ("family", "method", "outcome", "detail", "latency_s", "emergency_latency_s")
 
 
-def read_rows(path: Path, jobs: set[tuple[str, str, int]]) -> list[dict[str, Any]]:
+def read_rows(path: Path, jobs: set[tuple[str, str, int]], *,
+              latency: tuple[Optional[float], Optional[float]] = (None, None)
+              ) -> list[dict[str, Any]]:
     """The rows of an earlier ``results.csv`` that belong to ``jobs`` ((method, family,
-    seed)) and did not end in ``error``, typed as ``run_scene`` returns them (a missing
-    file: none). Raises ``ValueError`` / ``KeyError`` naming a malformed row."""
+    seed)), ran with the same simulated ``latency`` and did not end in ``error``, typed as
+    ``run_scene`` returns them (latency cells as text; a missing file: none). Raises
+    ``ValueError`` / ``KeyError`` naming a malformed row."""
     if not path.exists():
         return []
     rows = []
@@ -548,9 +622,19 @@ def read_rows(path: Path, jobs: set[tuple[str, str, int]]) -> list[dict[str, Any
                     for c in COLUMNS}
             except ValueError as exc:
                 raise ValueError(f"line {line}: {exc}") from None
-            if row["outcome"] != "error" and (row["method"], row["family"], row["seed"]) in jobs:
+            want = latency_cells(row["method"], latency)
+            same_latency = all(_same_cell(row[k], v) for k, v in want.items())
+            if row["outcome"] != "error" and same_latency and \
+                    (row["method"], row["family"], row["seed"]) in jobs:
                 rows.append(row)
     return rows
+
+
+def _same_cell(text: str, value: Any) -> bool:
+    """A latency cell read back from results.csv against the value this run writes."""
+    if text == "" or value == "":
+        return text == "" and value == ""
+    return math.isclose(float(text), float(value))
 
 
 def write_rows(path: Path, rows: list[dict[str, Any]]) -> None:
@@ -574,9 +658,17 @@ def write_outputs(args: argparse.Namespace, rows: list[dict[str, Any]], log_dir:
     stats = decision_stats(log_dir)  # {} when no planner wrote a log
     (args.out / "summary.json").write_text(json.dumps(
         {"families": summary, "planner": stats, "wall_time_s": round(wall_s, 1),
+         "decision_latency_s": args.decision_latency,
+         "emergency_latency_s": latency_cells(
+             "lmpc", (args.decision_latency, args.emergency_latency))["emergency_latency_s"]
+         or None,
          "workers": args.workers, "seeds": args.seeds, "instruction": args.instruction,
          "partial": partial, "resumed_rows": resumed}, indent=2))
     table = table_md(summary)
+    if args.decision_latency is not None or args.emergency_latency is not None:
+        cells = latency_cells("lmpc", (args.decision_latency, args.emergency_latency))
+        table = (f"Simulated decision latency {cells['latency_s'] or 'as configured'} s, "
+                 f"emergency {cells['emergency_latency_s']} s.\n\n" + table)
     if partial is not None:
         table = (f"PARTIAL: interrupted after {partial['scenes_done']} of "
                  f"{partial['scenes_planned']} scenes.\n\n" + table)

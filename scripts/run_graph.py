@@ -303,7 +303,21 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     ap.add_argument("--instruction", metavar="TEXT",
                     help="the user's instruction (e.g. 'drive conservatively'), published on "
                          "/lmpc/instruction before the episode starts")
+    ap.add_argument("--decision-latency", type=float, metavar="S",
+                    help="simulate a planner latency: every decision takes effect S s (sim "
+                         "time) after its observation, whatever the backend (rules too); "
+                         "default: the planner config's")
+    ap.add_argument("--emergency-latency", type=float, metavar="S",
+                    help="the latency of emergency decisions (default with "
+                         "--decision-latency: min(S, 1.5), the paper's emergency path)")
     args = ap.parse_args(argv)
+    for name in ("decision_latency", "emergency_latency"):
+        value = getattr(args, name)
+        if value is not None and args.planner in ("none", "mock"):
+            ap.error(f"--{name.replace('_', '-')} needs a planner backend (not "
+                     f"--planner {args.planner})")
+        if value is not None and not (0.0 <= value <= 600.0):
+            ap.error(f"--{name.replace('_', '-')} must be within 0..600 s, got {value}")
     if args.planner == "mock" and args.mock_script is None:
         ap.error("--planner mock needs --mock-script FILE")
     if args.extra_subscribers < 0:
@@ -334,6 +348,9 @@ def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, 
     if args.planner not in ("none", "mock"):
         params["planner"] = {"use_sim_time": True, "backend": args.planner,
                              "run_dir": str(run_dir)}
+        for name in ("decision_latency", "emergency_latency"):
+            if getattr(args, name) is not None:
+                params["planner"][f"{name}_s"] = float(getattr(args, name))
         if args.planner_config:
             params["planner"]["config_file"] = str(args.planner_config.resolve())
         elif args.planner == "local":
@@ -463,6 +480,15 @@ def scene_failure(run_dir: Path, args: argparse.Namespace, detail: str) -> dict[
     return _write_summary(summary, run_dir, args)
 
 
+def effective_emergency_latency(args: argparse.Namespace) -> Optional[float]:
+    """The emergency latency the planner simulates (None: the config's)."""
+    if args.emergency_latency is not None or args.decision_latency is None:
+        return args.emergency_latency
+    from lmpc_llm_planner.config import DEFAULT_EMERGENCY_LATENCY_S
+
+    return min(args.decision_latency, DEFAULT_EMERGENCY_LATENCY_S)
+
+
 def _write_summary(summary: dict[str, object], run_dir: Path,
                    args: argparse.Namespace) -> dict[str, object]:
     """Write the summary into the run folder (and to --summary-json)."""
@@ -550,6 +576,8 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
         "planner": args.planner,
         "instruction": args.instruction,
         "clock": args.clock,
+        "decision_latency_s": args.decision_latency,
+        "emergency_latency_s": effective_emergency_latency(args),
         "outcome": outcome,
         "detail": detail,
         "sim_time_s": sim_s,

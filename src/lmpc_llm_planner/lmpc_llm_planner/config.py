@@ -8,7 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from lmpc_msgs_py.yamlfile import first_field_error, read_mapping
 
@@ -170,6 +170,10 @@ class PlannerConfig(_Frozen):
     fixed_latency_s: Optional[float] = Field(default=None, ge=0.0, le=600.0)
     """When set, reported as every decision's latency instead of the measured wall time
     (repeatable runs with a simulated LLM delay)."""
+    emergency_latency_s: Optional[float] = Field(default=None, ge=0.0, le=600.0)
+    """When set, reported as the latency of every emergency decision (the paper's short
+    emergency prompt answers in under 1.5 s), whatever the backend (rules included) and
+    whatever ``fixed_latency_s`` says; None: emergencies get the normal latency."""
     backend: BackendName = "rules"
     """Which backend answers (see ``lmpc_llm_planner.backends``)."""
     stages: Literal["single", "chained"] = "single"
@@ -210,6 +214,50 @@ class PlannerConfig(_Frozen):
     openai: OpenAIConfig = OpenAIConfig()
     local: LocalConfig = LocalConfig()
     replay: ReplayConfig = ReplayConfig()
+
+    @model_validator(mode="after")
+    def _decisions_can_take_effect(self) -> "PlannerConfig":
+        # a decision takes effect at its stamp + latency and expires at stamp + ttl: with
+        # a latency >= ttl it would never steer (the MPC would silently run its baseline)
+        for name in ("fixed_latency_s", "emergency_latency_s"):
+            lat = getattr(self, name)
+            if lat is not None and lat >= self.ttl_s:
+                raise ValueError(f"{name} = {lat} s is not below ttl_s = {self.ttl_s} s: "
+                                 "such decisions would expire before taking effect; raise "
+                                 "ttl_s (latency_overrides does)")
+        return self
+
+
+DEFAULT_EMERGENCY_LATENCY_S = 1.5
+"""The paper's emergency path answers in under 1.5 s (its short prompt, no scenario
+encoding): the emergency latency a simulated decision latency gets unless told."""
+
+
+def latency_overrides(decision_latency_s: Optional[float],
+                      emergency_latency_s: Optional[float], *, period_s: float,
+                      ttl_s: float) -> dict[str, float]:
+    """Config overrides that simulate a decision latency (``--decision-latency`` of the
+    benchmark and ``run_graph.py``): ``fixed_latency_s``, ``emergency_latency_s``
+    (default ``min(decision latency, DEFAULT_EMERGENCY_LATENCY_S)``) and, where latency
+    plus cadence exceeds it, ``ttl_s`` raised to ``latency + period_s``, so a decision
+    stays in force until its successor takes effect (at 5 s latency the default 5 s TTL
+    would expire every decision the moment it took effect). None: not simulated.
+    Raises ``ValueError`` naming a negative latency."""
+    out: dict[str, float] = {}
+    for name, value in (("decision latency", decision_latency_s),
+                        ("emergency latency", emergency_latency_s)):
+        if value is not None and not (0.0 <= value <= 600.0):
+            raise ValueError(f"{name} must be within 0..600 s, got {value}")
+    if decision_latency_s is not None:
+        out["fixed_latency_s"] = float(decision_latency_s)
+        if emergency_latency_s is None:
+            emergency_latency_s = min(decision_latency_s, DEFAULT_EMERGENCY_LATENCY_S)
+    if emergency_latency_s is not None:
+        out["emergency_latency_s"] = float(emergency_latency_s)
+    longest = max(out.values(), default=0.0)
+    if longest + period_s > ttl_s:
+        out["ttl_s"] = round(longest + period_s, 6)
+    return out
 
 
 def load_planner_config(

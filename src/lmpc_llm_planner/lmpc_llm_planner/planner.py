@@ -15,7 +15,8 @@ Latency (DESIGN §2 sync mode: a decision takes effect at its observation's stam
 latency): the wall time of all the decision's calls, or ``fixed_latency_s``, or, for a
 backend with ``reports_latency = True``, the sum of the latencies its replies report (a
 replayed log's recorded latency, exactly), or a simulated reasoner's
-``reported_latency_s`` (rules: 0).
+``reported_latency_s`` (rules: 0); an emergency decision reports ``emergency_latency_s``
+instead when that is set (every backend, rules included).
 """
 from __future__ import annotations
 
@@ -278,6 +279,8 @@ class PlannerCore:
         self._n += 1
         stamp_ms = int(round(scene.obs.stamp_s * 1000.0))
         reported = self.config.fixed_latency_s
+        if mode == "emergency" and self.config.emergency_latency_s is not None:
+            reported = self.config.emergency_latency_s  # the paper's short emergency path
         if reported is None and source == self.backend.name:
             # a simulated reasoner (rules) declares its latency: its wall time depends
             # on the machine's load and would make runs unrepeatable

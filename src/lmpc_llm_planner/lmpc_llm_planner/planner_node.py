@@ -2,8 +2,10 @@
 
 Parameters (mapped once into ``PlannerConfig``): ``config_file`` ('' = packaged
 default), ``backend`` ('' = from the file), ``ego_id`` ('' = single ego),
-``run_dir`` (decision log at ``run_dir/decisions.jsonl`` when set), and ROS's own
-``use_sim_time``. Topics and timing: see ``decision_node.py``.
+``run_dir`` (decision log at ``run_dir/decisions.jsonl`` when set),
+``decision_latency_s`` / ``emergency_latency_s`` (a simulated latency, < 0 = from
+the file; ``config.latency_overrides``), and ROS's own ``use_sim_time``.
+Topics and timing: see ``decision_node.py``.
 """
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ from rcl_interfaces.msg import ParameterDescriptor
 from lmpc_msgs_py.base_node import run_node
 
 from lmpc_llm_planner.backends import make_backend
-from lmpc_llm_planner.config import load_planner_config
+from lmpc_llm_planner.config import latency_overrides, load_planner_config
 from lmpc_llm_planner.decision_node import DecisionNode
 from lmpc_llm_planner.planner import PlannerCore
 
@@ -40,14 +42,26 @@ class PlannerNode(DecisionNode):
         run_dir = self.get_parameter("run_dir").value
         if run_dir:
             overrides["decision_log"] = str(Path(run_dir) / "decisions.jsonl")
-        config = load_planner_config(self.get_parameter("config_file").value or None,
-                                     overrides=overrides)
+        for name in ("decision_latency_s", "emergency_latency_s"):
+            self.declare_parameter(name, -1.0, desc(
+                description=f"simulated {name.split('_')[0]} latency, s (< 0: from the file)"))
+        latency = tuple(v if v >= 0.0 else None for v in (
+            float(self.get_parameter("decision_latency_s").value),
+            float(self.get_parameter("emergency_latency_s").value)))
+        config_file = self.get_parameter("config_file").value or None
+        if latency != (None, None):
+            base = load_planner_config(config_file, overrides=overrides)
+            overrides.update(latency_overrides(latency[0], latency[1], period_s=base.period_s,
+                                               ttl_s=base.ttl_s))
+        config = load_planner_config(config_file, overrides=overrides)
         mpc_config = load_mpc_config(self.get_parameter("mpc_config_file").value or None)
         self.planner = PlannerCore(config, make_backend(config), mpc_config)
         self.core = self.planner
         self.start()
         self.get_logger().info(
             f"backend={config.backend} stages={config.stages} period={config.period_s} s "
+            f"latency={config.fixed_latency_s} s emergency={config.emergency_latency_s} s "
+            f"ttl={config.ttl_s} s "
             f"log={config.decision_log or 'off'}"
         )
 

@@ -180,3 +180,34 @@ def test_time_going_backwards_restarts_schedule(left_turn_map, obs_factory, plan
     assert core.on_observation(obs_factory(left_turn_map, stamp_s=5.0)) is not None
     assert core.on_observation(obs_factory(left_turn_map, stamp_s=5.1)) is None
     assert core.on_observation(obs_factory(left_turn_map, stamp_s=0.0)) is not None
+
+
+def test_emergency_latency_is_honoured_separately(left_turn_map, obs_factory, planner_config,
+                                                  mpc_config):
+    """A simulated 2.5 s planner with the paper's short emergency path: normal decisions
+    report 2.5 s, emergency ones 1.0 s, for the rules backend too (which reports 0
+    otherwise); the TTL is raised so a decision outlives its successor's latency."""
+    from lmpc_llm_planner.config import latency_overrides
+
+    over = latency_overrides(2.5, 1.0, period_s=planner_config.period_s,
+                             ttl_s=planner_config.ttl_s)
+    assert over == {"fixed_latency_s": 2.5, "emergency_latency_s": 1.0}
+    core = PlannerCore(cfg_with(planner_config, **over), RulesBackend(), mpc_config)
+    ds = run(core, left_turn_map, obs_factory, t_end_s=2.0,
+             agents_at=lambda t: head_on(t) if t >= 1.0 - 1e-9 else ())
+    assert [(d.mode, d.latency_s) for d in ds] == [
+        ("normal", 2.5), ("emergency", 1.0), ("emergency", 1.0), ("emergency", 1.0)]
+    # without a simulated latency the rules reasoner is instant on both paths
+    plain = run(PlannerCore(planner_config, RulesBackend(), mpc_config), left_turn_map,
+                obs_factory, t_end_s=1.0, agents_at=lambda t: head_on(t) if t >= 1.0 - 1e-9
+                else ())
+    assert [(d.mode, d.latency_s) for d in plain] == [("normal", 0.0), ("emergency", 0.0)]
+    # the emergency latency defaults to the paper's 1.5 s (or the normal one if shorter);
+    # a 5 s latency keeps decisions in force until the next one takes effect
+    assert latency_overrides(5.0, None, period_s=2.5, ttl_s=5.0) == {
+        "fixed_latency_s": 5.0, "emergency_latency_s": 1.5, "ttl_s": 7.5}
+    assert latency_overrides(1.0, None, period_s=2.5, ttl_s=5.0)["emergency_latency_s"] == 1.0
+    with pytest.raises(ValueError, match="decision latency"):
+        latency_overrides(-1.0, None, period_s=2.5, ttl_s=5.0)
+    with pytest.raises(ValueError, match="expire before taking effect"):
+        cfg_with(planner_config, fixed_latency_s=5.0)

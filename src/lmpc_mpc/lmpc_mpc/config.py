@@ -216,6 +216,11 @@ class MpcConfig(BaseModel):
     """An agent the per-step floor added stays attended this long after it last met the
     floor's test (sim time): the constant-velocity TTC of a car ahead vanishes while the
     ego swerves round it, and dropping the car mid-swerve let the plan turn back into it [s]."""
+    stale_decision_check: bool = True
+    """Check the decision in force against the current state on every step (issue 23,
+    ``lmpc_mpc.stale``): re-attend agents it dropped or mispredicted that are on the ego's
+    path, refuse its "go" while the MPC's own crossing rule yields. False: the decision
+    is applied as it came (for measuring what the check costs)."""
     max_agents: int = Field(20, ge=0, le=100)
     """Most obstacle slots one problem holds (agents plus a red-light stop line); the
     nearest are kept."""

@@ -44,6 +44,7 @@ from lmpc_mpc.reference import (
 )
 from lmpc_mpc.route_guard import RouteLeave, leaves_route
 from lmpc_mpc.solver import MpcProblem, MpcSolver, Obstacle
+from lmpc_mpc.stale import StaleRecord, StaleVerdict, on_path, reach_m
 
 _STOP_STATES = ("r", "y", "u")
 _TIME_EPS_S = 1e-6
@@ -52,6 +53,8 @@ _STOP_MARGIN_M = 1.0
 _COMFORT_DECEL_MPS2 = 3.0
 """A yellow light is run through when stopping would need more than this."""
 _DECISION_MEMORY = 8
+_STALE_LOG_DECISIONS = 256
+"""The stale check's record is kept for this many decisions (the newest)."""
 _Points = tuple[tuple[float, float], ...]
 _CANDIDATE_REUSE_S = 0.5
 """An agent's closest-heading candidate is rebuilt at most this often (sim time) while
@@ -95,6 +98,12 @@ class ControllerStats:
     route_overrides: int = 0
     """Decisions whose chosen candidate left the ego's route where the route goes on
     elsewhere (``route_guard``): the MPC tracked the route reference instead."""
+    stale_steps: int = 0
+    """Steps on which the decision in force was found stale for some agent (``lmpc_mpc.stale``)."""
+    stale_agent_steps: int = 0
+    """Agent-steps an agent was re-attended with the MPC's own forecast (stale check)."""
+    go_refused: int = 0
+    """Steps on which a decision's "go" bias was refused (the MPC's crossing rule yields)."""
 
 
 _LEAD_IN_OFF_RAD = math.radians(60.0)
@@ -172,7 +181,8 @@ class MpcController:
         self._plan_age = 0
         self._counts = {"steps": 0, "solver_failures": 0, "fallbacks": 0, "shifted": 0,
                         "brakes": 0, "stale_inputs": 0, "floor_additions": 0,
-                        "hedged": 0, "route_overrides": 0}
+                        "hedged": 0, "route_overrides": 0, "stale_steps": 0,
+                        "stale_agent_steps": 0, "go_refused": 0}
         self._mode = "idle"
         self._solved_decision_id: Optional[str] = None
         self._ego_v_mps = 0.0
@@ -207,6 +217,13 @@ class MpcController:
         """Attended agent id -> (N+1, 2) forecast the last problem used (visual mirror)."""
         self.reference_id: Optional[int] = None
         """The decision's candidate id of the last step (None: baseline route reference)."""
+        self.stale = StaleVerdict()
+        """What the stale-decision check found on the last step (``lmpc_mpc.stale``)."""
+        self.stale_log: dict[str, StaleRecord] = {}
+        """Decision id -> what the stale check did while it was in force (first / last
+        sim time, steps, agents, go refused steps): for the decision log."""
+        self._yielded: list[str] = []
+        """Agents the crossing rule of the last ``_lead_limits`` call yielded to."""
 
     # -- decisions -----------------------------------------------------------------------
     def on_decision(self, decision: Decision) -> None:
@@ -247,6 +264,8 @@ class MpcController:
         self._agent_curves.clear()
         self._route_s = None
         self._solved_decision_id = None
+        self.stale = StaleVerdict()
+        self.stale_log.clear()
         self.solver.reset()
 
     # -- control -------------------------------------------------------------------------
@@ -257,6 +276,7 @@ class MpcController:
         ``stale_after_s`` relative to it brakes, as do agents older than the ego state.
         """
         self._counts["steps"] += 1
+        self.stale = StaleVerdict()
         ego = obs.ego
         t = ego.stamp_s
         stale = None
@@ -405,7 +425,22 @@ class MpcController:
         coarse = _Polyline.of(np.vstack([path[:-1:3], path[-1:]])) if len(path) > 7 else line
         self._ego_v_mps = ego.v_mps
         self._now_s = ego.stamp_s
+        reattended: tuple[str, ...] = ()
+        check = decision is not None and cfg.stale_decision_check
+        if check:
+            reattended = self._reattend_stale(obs, coarse, agents[:slots], preds, obstacles,
+                                              speeds)
         s_limit = self._lead_limits(coarse, obstacles, speeds)
+        refused: tuple[str, ...] = ()
+        neutral_hi = cfg.accel_intervals_mps2[cfg.neutral_accel_index][1]
+        if check and bias[0] > neutral_hi and self._yielded:
+            # the decision says go, the MPC's own crossing rule (on the current state)
+            # yields: the gap the decision relied on has closed. Neutral bias and
+            # reference acceleration; reference curve and weights stay the decision's
+            refused = tuple(self._yielded)
+            bias = (0.0, bias[1])
+            ref_acc = cfg.reference_accel_mps2
+        self._note_stale(decision, StaleVerdict(reattended=reattended, go_refused_for=refused))
         ref = timed_reference(path, v0_mps=ego.v_mps, v_max_mps=min(v_limit, ref_v_cap),
                               a_max_mps2=ref_acc, a_dec_mps2=ref_dec,
                               a_lat_max_mps2=cfg.reference_lat_accel_mps2, horizon=n,
@@ -506,6 +541,7 @@ class MpcController:
             crossing.append((ob.obstacle_id, float(np.min(s_k[on])) - gap,
                              float(np.max(s_k[on])) + gap, k_last))
         comfort_m = self._ego_v_mps ** 2 / (2.0 * _COMFORT_DECEL_MPS2)
+        self._yielded = []
         for oid, s_enter, _, k_last in crossing:
             # never plan to stop inside another crossing agent's zone (blocking the
             # junction): stop before that zone instead (our rule, see docs)
@@ -526,6 +562,7 @@ class MpcController:
                 continue
             # stay out of the conflict zone until it has left (plus one headway)
             limit[: k_last + 1] = np.minimum(limit[: k_last + 1], s_enter)
+            self._yielded.append(oid.removesuffix(OWN_SUFFIX))
         return None if not np.any(np.isfinite(limit)) else limit
 
     def _decision_bias(self, decision: Decision) -> tuple[float, float]:
@@ -540,6 +577,63 @@ class MpcController:
         checked once per decision, on the curve ``_decision_curve`` builds from it."""
         self._decision_curve(obs, decision)
         return None if self._curve is None else self._curve[2]
+
+    def _reattend_stale(self, obs: Observation, line: _Polyline, in_problem: Sequence[Agent],
+                        preds: dict[str, object], obstacles: list[Obstacle],
+                        speeds: list[float]) -> tuple[str, ...]:
+        """The stale-decision check's attention part (``lmpc_mpc.stale``): every agent in
+        sensing range whose own forecast enters the ego's path corridor within reach in
+        the horizon, and that the problem does not yet avoid along that forecast (the
+        decision dropped it, or its prediction of it is more than ``_HEDGE_APART_M``
+        away), is added with the own forecast (``<id>#own`` beside a prediction).
+        Appends to ``obstacles`` / ``speeds``; returns the ids added."""
+        cfg, veh, ego = self.config, self.vehicle, obs.ego
+        n = cfg.horizon
+        horizon_s = n * cfg.dt_s
+        reach = reach_m(ego.v_mps, accel_mps2=veh.max_accel_mps2, horizon_s=horizon_s)
+        reach += veh.length_m + cfg.safety_gap_m
+        placed = {ob.obstacle_id: ob for ob in obstacles}
+        added: list[str] = []
+        in_ids = {a.id for a in in_problem}
+        for ag in obs.agents.agents:
+            dist = math.hypot(ag.x_m - ego.x_m, ag.y_m - ego.y_m)
+            if dist > cfg.sensing_range_m or dist > reach + ag.v_mps * horizon_s + 10.0:
+                continue  # cannot meet the ego's path within the horizon
+            if ag.id in in_ids and (ag.id not in preds or ag.id + OWN_SUFFIX in placed):
+                continue  # already avoided along the MPC's own forecast
+            own = self._baseline_curve(obs, ag) if ag.v_mps >= 0.05 else None
+            mine = forecast(ag, own, map_=obs.map, horizon=n, dt_s=cfg.dt_s,
+                            lookahead_m=cfg.lookahead_m).xy_m
+            s_k, d_k = line.project_many(mine)
+            lat = 0.5 * (veh.width_m + ag.width_m) + cfg.safety_lateral_gap_m
+            if not on_path(s_k, d_k, lateral_clear_m=lat, reach_m=reach,
+                           path_length_m=line.length_m):
+                continue
+            theirs = placed.get(ag.id)
+            if theirs is not None and float(np.max(np.hypot(*(mine - theirs.xy_m).T))) \
+                    <= _HEDGE_APART_M:
+                continue  # the decision's prediction agrees with the own forecast
+            name = ag.id + OWN_SUFFIX if theirs is not None else ag.id
+            obstacles.append(Obstacle(name, mine, ag.length_m, ag.width_m))
+            speeds.append(ag.v_mps)
+            added.append(ag.id)
+        return tuple(added)
+
+    def _note_stale(self, decision: Optional[Decision], verdict: StaleVerdict) -> None:
+        """Count the stale check's verdict and keep it per decision for the log."""
+        self.stale = verdict
+        if decision is None or not verdict.fired:
+            return
+        self._counts["stale_steps"] += 1
+        self._counts["stale_agent_steps"] += len(verdict.reattended)
+        self._counts["go_refused"] += int(bool(verdict.go_refused_for))
+        rec = self.stale_log.get(decision.decision_id)
+        if rec is None:
+            rec = self.stale_log[decision.decision_id] = StaleRecord(
+                decision_id=decision.decision_id, first_s=self._now_s)
+        rec.add(self._now_s, verdict)
+        if len(self.stale_log) > _STALE_LOG_DECISIONS:
+            del self.stale_log[next(iter(self.stale_log))]
 
     def _decision_curve(self, obs: Observation, decision: Decision) -> np.ndarray:
         """The decision's reference curve, sampled, and continued past its end so that
@@ -665,6 +759,6 @@ class MpcController:
         ctl = Control(stamp_s=obs.ego.stamp_s, seq=self._seq, accel_mps2=a, steer_rad=d,
                       mode=mode, solver_status=status[:200], solve_time_ms=solve_ms,
                       decision_id=decision_id, reference_id=ref_id, attended=attended,
-                      predicted=pts)  # type: ignore[arg-type]
+                      predicted=pts, stale=self.stale.labels())  # type: ignore[arg-type]
         self._seq += 1
         return ctl

@@ -277,6 +277,9 @@ class MpcNode(LmpcNode):
                                   "floor_additions": st.floor_additions,
                                   "hedged": st.hedged,
                                   "route_overrides": st.route_overrides,
+                                  "stale_steps": st.stale_steps,
+                                  "stale_agent_steps": st.stale_agent_steps,
+                                  "go_refused": st.go_refused,
                                   "over_budget": st.over_budget})
 
 

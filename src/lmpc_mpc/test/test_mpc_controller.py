@@ -277,9 +277,11 @@ def test_safety_floor_attends_a_close_agent_the_decision_left_out(solver: MpcSol
     assert all("stopped" in c.attended for _, x, c in log[first:] if x[0] < 80.0)
     assert ctrl.stats().floor_additions > 0
     assert min_gap_m(log) > 0.5 and log[-1][1][3] < 1.5
+    # (the stale-decision check off too: it would re-attend the car on the path)
     blind, ctrl = drive(CFG.model_copy(update={"safety_floor_dist_m": 0.0,
                                                "safety_floor_ttc_s": 0.0,
-                                               "safety_floor_reach_s": 0.0}))
+                                               "safety_floor_reach_s": 0.0,
+                                               "stale_decision_check": False}))
     assert all(c.attended == () for _, _, c in blind[1:]) and ctrl.stats().floor_additions == 0
     assert min_gap_m(blind) == 0.0
 
@@ -347,8 +349,9 @@ def test_close_agent_is_kept_clear_of_along_the_mpc_forecast_too(
             (10.0, -4.8), (100.0, -4.8), (190.0, -4.8))),
         "attention": ("slow",), "agent_predictions": (leaves,)})
 
-    def drive() -> tuple[list, MpcController]:
-        ctrl = _ctrl(solver)
+    def drive(config=CFG) -> tuple[list, MpcController]:
+        solver.reset()
+        ctrl = MpcController(config, solver=solver)
         ctrl.on_decision(keep)
         return _run(ctrl, m, (10.0, -4.8, 0.0, 12.0), 80, lambda t: [slow(t)]), ctrl
 
@@ -363,6 +366,64 @@ def test_close_agent_is_kept_clear_of_along_the_mpc_forecast_too(
     assert "slow#own" in ctrl.agent_predictions
     assert min_gap_m(log) > 1.0
     monkeypatch.setattr(C, "_HEDGE_APART_M", math.inf)
-    blind, ctrl = drive()
+    # (the stale-decision check off too: it would add the own forecast the same way)
+    blind, ctrl = drive(CFG.model_copy(update={"stale_decision_check": False}))
     assert ctrl.stats().hedged == 0
     assert min_gap_m(blind) == 0.0
+
+
+def test_a_go_that_became_unsafe_before_taking_effect_is_refused(solver: MpcSolver) -> None:
+    """Issue 23. The planner looked at t = 0 (no one coming) and said "go" (accelerate,
+    left turn, attend nobody); with a 2.5 s latency the decision takes effect at 2.5 s.
+    Meanwhile a car has appeared in the oncoming lane (at 1 s), reaching the ego's turn
+    path within the horizon. The stale check, on the current state with the MPC's own
+    forecast, refuses the go while the MPC's crossing rule yields to the car: the bias
+    is neutral, ``Control.stale`` and the stats say so, the ego stays out of the
+    oncoming lane until the car has passed, then turns. Check off: the go is applied
+    as it came (the ego speeds up towards the junction)."""
+    from lmpc_mpc.reference import route_candidate
+
+    m = S.four_way_junction()
+    start = (1.6, -30.0, math.pi / 2, 0.0)
+    turn = route_candidate(m, S.ego_state(x_m=start[0], y_m=start[1], yaw_rad=start[2]),
+                           lookahead_m=CFG.lookahead_m)
+    go = _decision(start[:2], stamp_s=0.0, latency_s=2.5, ttl_s=30.0,
+                   accel_idx=len(CFG.accel_intervals_mps2) - 1)
+    go = go.model_copy(update={"ego_trajectory": BezierTrajectory(
+        candidate_id=turn.candidate_id, control_points=turn.control_points),
+        "attention": ()})
+    assert go.accel_bias_mps2 > 1.0
+
+    def oncoming(t: float) -> list[Agent]:
+        if t < 1.0:
+            return []  # not there when the planner looked
+        y = 48.0 - 10.0 * (t - 1.0)
+        return [S.agent("on", x_m=-1.6, y_m=y, yaw_rad=-math.pi / 2, v_mps=10.0,
+                        lane_id="N_in_0" if y > 8.0 else ":J_3_0")]
+
+    def drive(check: bool) -> tuple[list, MpcController]:
+        cfg = CFG.model_copy(update={"stale_decision_check": check})
+        solver.reset()
+        ctrl = MpcController(cfg, solver=solver)
+        ctrl.on_decision(go)
+        return _run(ctrl, m, start, 110, oncoming), ctrl
+
+    def mean_accel(log, times: set[float]) -> float:
+        return float(np.mean([c.accel_mps2 for t, _, c in log if round(t, 1) in times]))
+
+    log, ctrl = drive(True)
+    refused = [(t, c) for t, _, c in log if "go" in c.stale]
+    assert refused and all(c.decision_id == go.decision_id for _, c in refused)
+    assert 2.5 - 1e-9 <= min(t for t, _ in refused) < 3.0  # once in force, not before
+    assert all("on" in c.stale for _, c in refused)
+    st = ctrl.stats()
+    assert st.go_refused == len(refused) and st.stale_steps >= st.go_refused
+    assert ctrl.stale_log[go.decision_id].go_refused_steps == st.go_refused
+    for t, x, _ in log:  # out of the oncoming lane while the car is near the crossing
+        if any(-6.0 < a.y_m < 25.0 for a in oncoming(t + CFG.dt_s)):
+            assert x[0] > 0.0
+    assert log[-1][1][0] < -3.0  # and it turned once the car had passed
+    blind, ctrl = drive(False)
+    assert ctrl.stats().stale_steps == 0 and all(not c.stale for _, _, c in blind)
+    first = {round(t, 1) for t, _ in refused[:5]}  # the go applied there: harder
+    assert mean_accel(blind, first) > mean_accel(log, first) + 0.3

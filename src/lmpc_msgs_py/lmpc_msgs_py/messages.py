@@ -325,6 +325,10 @@ class Control(LmpcMessage):
     reference_id: Optional[Annotated[int, Field(ge=0, le=2)]] = None
     attended: tuple[Ident, ...] = Field(default=(), max_length=1000)
     predicted: tuple[PosePoint, ...] = Field(default=(), max_length=200)
+    stale: tuple[Ident, ...] = Field(default=(), max_length=1000)
+    """What the MPC's stale-decision check overrode on this step (``lmpc_mpc.stale``): the
+    agents it re-attended with its own forecast or refused a "go" for, then ``go`` when
+    it refused the decision's go bias. Empty: the decision in force held (or none)."""
 
 
 # --- episode -----------------------------------------------------------------------------

@@ -1,0 +1,40 @@
+"""``scripts/latency_table.py``: the latency table and plot from benchmark summaries
+(hand-made here, so the expected cells are known)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from lmpc_scripts import latency_table
+
+
+def _summary(folder: Path, latency: float | None, si_oc: float, si_coll: int) -> Path:
+    folder.mkdir(parents=True)
+    row = {"scenes": 25, "collisions": si_coll, "fails": 0, "overall_cost": si_oc,
+           "stale_scenes": 3, "stale_steps": 40}
+    (folder / "summary.json").write_text(json.dumps({
+        "decision_latency_s": latency, "partial": None,
+        "families": {"si": {"lmpc-rules": row},
+                     "usi": {"mpc": dict(row), "lmpc-rules": dict(row, overall_cost=100.0)}}}))
+    return folder
+
+
+def test_table_and_plot_per_latency(tmp_path: Path) -> None:
+    runs = latency_table.load([_summary(tmp_path / "b", 2.5, 150.0, 1),
+                               _summary(tmp_path / "a", 0.0, 120.0, 0)])
+    assert list(runs) == [0.0, 2.5]  # sorted by latency, whatever the folder order
+    table = latency_table.table_md(runs)
+    assert "| SI | 0 | 25 | 0 | 0 | 120.0 |  | 3 / 40 |" in table
+    assert "| SI | 2.5 | 25 | 1 | 0 | 150.0 | +25.0% | 3 / 40 |" in table
+    png = tmp_path / "latency.png"
+    latency_table.plot(runs, png)
+    assert png.stat().st_size > 5000
+
+
+def test_a_run_without_a_latency_is_refused_naming_the_folder(tmp_path: Path) -> None:
+    folder = _summary(tmp_path / "plain", None, 120.0, 0)
+    with pytest.raises(ValueError, match="plain.*--decision-latency"):
+        latency_table.load([folder])
+    assert latency_table.main([str(folder)]) == 2
