@@ -70,12 +70,14 @@ def percentile(values: Sequence[float], q: float) -> float:
 
 def make_planner(method: str, instruction: Optional[str] = None, *,
                  log_path: Optional[Path] = None, replay_log: Optional[Path] = None,
-                 replay_of: str = "lmpc-local") -> Any:
+                 replay_of: str = "lmpc-local", planner_config: Optional[Path] = None) -> Any:
     """The planner core of ``method`` (None for the ``mpc`` baseline); ``instruction``
     reaches it as the user's text through ``PlannerCore.on_instruction``, as the node's
     ``/lmpc/instruction`` subscription does; ``log_path``: its JSON-lines decision log.
     ``lmpc-replay`` answers from ``replay_log`` (prompts matched by hash only) with the
-    planner settings of the method that recorded it, ``replay_of``."""
+    planner settings of the method that recorded it, ``replay_of``. ``planner_config``: the
+    planner YAML of the LLM methods instead of the packaged one (``lmpc-local``: its own
+    ``planner_local.yaml``); the method still names the backend."""
     if method == "mpc":
         return None
     from lmpc_llm_planner.backends import make_backend
@@ -95,8 +97,9 @@ def make_planner(method: str, instruction: Optional[str] = None, *,
         settings_of = replay_of.removeprefix("lmpc-")
     # The small local model needs its own config (a deadline it can meet on a small CPU,
     # a simulated latency: config/planner_local.yaml says why), or every call times out.
-    config = load_planner_config(LOCAL_CONFIG_PATH if settings_of == "local" else None,
-                                 overrides=overrides)
+    path = planner_config if planner_config is not None else (
+        LOCAL_CONFIG_PATH if settings_of == "local" else None)
+    config = load_planner_config(path, overrides=overrides)
     core = PlannerCore(config, make_backend(config), load_mpc_config(), log_path=log_path)
     if instruction:
         core.on_instruction(instruction)
@@ -121,7 +124,8 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
               scene_file: Optional[str] = None,
               instruction: Optional[str] = None,
               log_dir: Optional[str] = None,
-              replay: Optional[tuple[str, str]] = None) -> dict[str, Any]:
+              replay: Optional[tuple[str, str]] = None,
+              planner_config: Optional[str] = None) -> dict[str, Any]:
     """One episode in this worker process; returns its results row.
 
     With ``scene_file`` the episode runs that scene description (``family`` and
@@ -135,7 +139,7 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
     """
     try:
         return _run_scene(method, family, seed, work_dir, scene_file, instruction, log_dir,
-                          replay)
+                          replay, planner_config)
     except Exception as exc:  # noqa: BLE001 - one broken scene must not end the run
         return error_row(method, family, seed, f"{type(exc).__name__}: {exc}")
 
@@ -150,7 +154,8 @@ def error_row(method: str, family: str, seed: int, detail: str) -> dict[str, Any
 def _run_scene(method: str, family: str, seed: int, work_dir: str,
                scene_file: Optional[str], instruction: Optional[str] = None,
                log_dir: Optional[str] = None,
-               replay: Optional[tuple[str, str]] = None) -> dict[str, Any]:
+               replay: Optional[tuple[str, str]] = None,
+               planner_config: Optional[str] = None) -> dict[str, Any]:
     global _SIM, _SOLVER
     from lmpc_bridge.runner import run_episode
     from lmpc_bridge.sim import SumoSim
@@ -184,7 +189,8 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
         if not replay_log.is_file():
             raise FileNotFoundError(f"no recorded decision log {replay_log}")
     planner = make_planner(method, instruction, log_path=log_path, replay_log=replay_log,
-                           replay_of=replay[1] if replay else "lmpc-local")
+                           replay_of=replay[1] if replay else "lmpc-local",
+                           planner_config=Path(planner_config) if planner_config else None)
     result = run_episode(sim, family=family, seed=seed,
                          controller=MpcController(config, solver=_SOLVER),
                          planner=planner, max_time_s=max_time_s)
@@ -378,6 +384,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--replay-of", default="lmpc-local", metavar="METHOD",
                     help="lmpc-replay: the recorded method (its logs and planner settings; "
                          "default lmpc-local)")
+    ap.add_argument("--planner-config", type=Path, metavar="YAML",
+                    help="planner settings of the LLM methods (default: the packaged "
+                         "planner.yaml; planner_local.yaml for lmpc-local), e.g. "
+                         "planner_server.yaml for lmpc-openai against a local CPU server")
     ap.add_argument("--decision-stats", type=Path, metavar="DIR",
                     help="only print the planner figures of a finished run folder "
                          "(DIR/decisions/*.jsonl) and write DIR/decisions.md")
@@ -393,6 +403,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         ap.error(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)}")
+    if args.planner_config is not None:
+        from lmpc_llm_planner.config import PlannerConfigError, load_planner_config
+
+        try:  # a bad file is named before any worker starts
+            load_planner_config(args.planner_config)
+        except PlannerConfigError as exc:
+            ap.error(f"--planner-config: {exc}")
     replay: Optional[tuple[str, str]] = None
     if "lmpc-replay" in methods:
         if args.replay_from is None or not (args.replay_from / "decisions").is_dir():
@@ -438,7 +455,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     pool = ProcessPoolExecutor(max_workers=max(1, args.workers))
     try:
         futures = {pool.submit(run_scene, m, f, s, work_dir, scene_file, args.instruction,
-                               str(log_dir), replay): (m, f, s) for m, f, s in jobs}
+                               str(log_dir), replay,
+                               str(args.planner_config.resolve()) if args.planner_config
+                               else None): (m, f, s) for m, f, s in jobs}
         for fut in as_completed(futures):
             m, f, s = futures[fut]
             try:
