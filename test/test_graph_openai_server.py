@@ -52,7 +52,8 @@ def server_command(port: int) -> list[str]:
         pytest.skip(str(exc))
     return [sys.executable, "-m", "llama_cpp.server", "--model", str(model),
             "--host", "127.0.0.1", "--port", str(port), "--n_threads", "1",
-            "--n_ctx", "2048", "--model_alias", MODEL_ALIAS]
+            # one thread for the prompt too (the server's default is every CPU)
+            "--n_threads_batch", "1", "--n_ctx", "2048", "--model_alias", MODEL_ALIAS]
 
 
 def stop_group(proc: subprocess.Popen[bytes]) -> None:

@@ -4,9 +4,10 @@
     python -m lmpc_llm_planner.backends.bench_server --base-url http://127.0.0.1:8080/v1 \\
         [--model smollm2] [--n 10]
 
-Start the server as the README says (llama-cpp-python's, one thread, the SmolLM2 GGUF the
-``local`` backend loads). Each synthetic scene of ``bench_local`` is asked of both, the
-two calls back to back and their order alternating, so both see the same machine load.
+Start the server as the README says (llama-cpp-python's, ``--n_threads 1 --n_threads_batch
+1``: one thread, as ``local``; the SmolLM2 GGUF the ``local`` backend loads). Each
+synthetic scene of ``bench_local`` is asked of both, the two calls back to back and
+their order alternating, so both see the same machine load.
 Settings: ``config/planner_local.yaml`` for ``local``, ``config/planner_server.yaml`` for
 ``openai`` (same reasoning cap and output limit). Prints one JSON line per call and a
 summary per backend: latency median / p95, share valid on the first answer, tokens,
