@@ -21,7 +21,8 @@ $(STAMP): $(SETUPS)
 	$(PY) -m pip install --quiet $(foreach p,$(PKGS),-e $(p)) -e '.[test]'
 	# The embedded LLM (llama.cpp, built from source once; pip caches the wheel). A native
 	# build dies with "Illegal instruction" on some CPUs: build for a portable AVX2 target.
-	CMAKE_ARGS="$(LLAMA_CMAKE_ARGS)" $(PY) -m pip install --quiet -e 'src/lmpc_llm_planner[local]'
+	# `server`: its OpenAI-compatible server (fastapi, uvicorn), for the openai backend's tests.
+	CMAKE_ARGS="$(LLAMA_CMAKE_ARGS)" $(PY) -m pip install --quiet -e 'src/lmpc_llm_planner[local,server]'
 	@touch $@
 
 demo: install

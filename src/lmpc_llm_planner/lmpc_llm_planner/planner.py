@@ -324,6 +324,10 @@ class PlannerCore:
                     reply.text or "", request=request, max_chars=self.config.max_output_chars
                 )
                 kind, msg, wire = parsed.error_kind, parsed.message, parsed.wire
+                if kind is not None and reply.truncated:
+                    msg = (f"the answer was cut off at the output limit ({reply.tokens_out or '?'}"
+                           " tokens); answer again in the compact form, with a reasoning of one "
+                           f"short sentence ({msg})")
             attempts.append(Attempt(stage, sha, tokens_in, tokens_out, reply.latency_s,
                                     reply.text, kind, msg))
             if wire is not None:

@@ -19,6 +19,7 @@ from lmpc_mpc.config import MpcConfig
 
 from lmpc_llm_planner.backends import BackendError, make_backend
 from lmpc_llm_planner.backends.base import DecisionRequest
+from lmpc_llm_planner.backends.constrain import compact_prompt
 from lmpc_llm_planner.backends.openai import OpenAIBackend, parse_endpoint, source_name
 from lmpc_llm_planner.backends.rules import RulesBackend
 from lmpc_llm_planner.config import OpenAIConfig, PlannerConfig
@@ -34,11 +35,12 @@ def make_request(obs, *, config: PlannerConfig, mpc_config: MpcConfig, **kw) -> 
     return build_request(scene, config=config, mpc_config=mpc_config, **kw)
 
 
-def completion(content: Optional[str], *, usage: Optional[dict] = None) -> dict[str, Any]:
+def completion(content: Optional[str], *, usage: Optional[dict] = None,
+               finish_reason: str = "stop") -> dict[str, Any]:
     """A chat-completions reply body carrying ``content``."""
     body: dict[str, Any] = {
         "id": "chatcmpl-1", "object": "chat.completion", "model": "test-model",
-        "choices": [{"index": 0, "finish_reason": "stop",
+        "choices": [{"index": 0, "finish_reason": finish_reason,
                      "message": {"role": "assistant", "content": content}}],
     }
     if usage is not None:
@@ -145,6 +147,10 @@ def request_(left_turn_map, obs_factory, planner_config, mpc_config):
                         mpc_config=mpc_config)
 
 
+def rf_schema(body: dict[str, Any]) -> dict[str, Any]:
+    return body["response_format"]["json_schema"]["schema"]
+
+
 def backend_for(server: FakeChatServer, **cfg) -> OpenAIBackend:
     return OpenAIBackend(OpenAIConfig(model="test-model", **cfg), api_key=SECRET,
                          base_url=server.base_url)
@@ -165,7 +171,7 @@ def test_valid_answer_with_usage_and_structured_output(server, request_):
     assert body["model"] == "test-model" and body["temperature"] == 0.0
     assert [m["role"] for m in body["messages"]] == ["system", "user"]
     assert "JSON" in body["messages"][0]["content"]
-    assert body["messages"][1]["content"] == request_.prompt
+    assert body["messages"][1]["content"] == compact_prompt(request_, rf_schema(body))
     rf = body["response_format"]
     assert rf["type"] == "json_schema"
     enc = rf["json_schema"]["schema"]["$defs"]["ScenarioEncoding"]["properties"]
@@ -211,33 +217,137 @@ def test_http_500_is_a_transport_error_and_echoed_key_is_redacted(server, reques
     assert SECRET not in reply.error and "[redacted]" in reply.error
 
 
-def test_400_on_json_schema_steps_down_and_remembers(server, request_, caplog):
-    def picky(req):
-        if req.get("response_format", {}).get("type") == "json_schema":
-            return Answer(400, b'{"error": {"message": "json_schema is not supported"}}')
-        return Answer(200, json.dumps(completion('{"reasoning": "ok"}')).encode())
+LLAMA_CPP_REFUSAL = (b'{"error": {"message": "[{\'type\': \'literal_error\', \'loc\': '
+                     b'(\'body\', \'response_format\', \'type\'), \'msg\': \"Input should be '
+                     b'\'text\' or \'json_object\'\"}]"}}')
+"""What llama-cpp-python's server answers (HTTP 500) to a json_schema response_format."""
 
-    server.default = picky
+
+def form_of(body: dict[str, Any]) -> str:
+    """The structured-output form a request used (the names of openai.FORMS)."""
+    rf = body.get("response_format") or {}
+    if rf.get("type") == "json_schema":
+        return "json_schema"
+    if rf.get("type") == "json_object":
+        return "json_object_schema" if "schema" in rf else "json_object"
+    if "format" in body:
+        return "ollama_format"
+    if "guided_json" in body:
+        return "guided_json"
+    return "none"
+
+
+def llama_cpp_like(valid: str) -> Action:
+    """Refuses json_schema as llama-cpp-python's server does; answers anything else."""
+    def act(req: dict[str, Any]) -> Answer:
+        if form_of(req) == "json_schema":
+            return Answer(500, LLAMA_CPP_REFUSAL)
+        return Answer(200, json.dumps(completion(valid)).encode())
+    return act
+
+
+def test_500_naming_the_format_steps_down_and_remembers(server, request_, caplog):
+    valid = RulesBackend().complete(request_).text
+    server.default = llama_cpp_like(valid)
     backend = backend_for(server)
+    assert backend.response_format == "json_schema"  # auto starts with the strongest form
     with caplog.at_level(logging.DEBUG):
         first = backend.complete(request_)
         second = backend.complete(request_)
-    assert first.ok and second.ok
-    assert backend.response_format == "json_object"
-    kinds = [s.json.get("response_format", {}).get("type") for s in server.seen]
-    assert kinds == ["json_schema", "json_object", "json_object"]  # remembered
-    assert "json_object from now on" in caplog.text
+    assert first.ok and second.ok and first.text == valid
+    assert [form_of(s.json) for s in server.seen] == [
+        "json_schema", "json_object_schema", "json_object_schema"]  # remembered
+    rf = server.seen[1].json["response_format"]
+    enc = rf["schema"]["$defs"]["ScenarioEncoding"]["properties"]
+    assert enc["attention"]["items"]["enum"] == ["car1"]  # the narrowed schema rides along
+    assert backend.response_format == backend.confirmed_format == "json_object_schema"
+    assert "trying response form json_object_schema" in caplog.text
+    assert "valid answers with response form json_object_schema" in caplog.text
     assert SECRET not in caplog.text
 
 
-def test_400_on_every_format_is_a_transport_error(server, request_):
+@pytest.mark.parametrize("accepted", ["ollama_format", "guided_json", "json_object", "none"])
+def test_negotiation_walks_the_forms_in_order(server, request_, accepted):
+    valid = RulesBackend().complete(request_).text
+    order = ["json_schema", "json_object_schema", "ollama_format", "guided_json",
+             "json_object", "none"]
+
+    def picky(req):
+        if form_of(req) != accepted:  # each refusal names its own field
+            return Answer(400, json.dumps({"error": f"unsupported field {form_of(req)}; "
+                                                    "check response_format"}).encode())
+        return Answer(200, json.dumps(completion(valid)).encode())
+
+    server.default = picky
+    backend = backend_for(server)
+    assert backend.complete(request_).ok
+    tried = [form_of(s.json) for s in server.seen]
+    assert tried == order[:order.index(accepted) + 1]
+    if accepted in ("ollama_format", "guided_json"):
+        field_name = "format" if accepted == "ollama_format" else "guided_json"
+        assert "ScenarioEncoding" in json.dumps(server.seen[-1].json[field_name])
+        assert "response_format" not in server.seen[-1].json
+    assert backend.confirmed_format == accepted
+
+
+def test_a_form_is_kept_only_after_a_valid_answer(server, request_, caplog):
+    valid = RulesBackend().complete(request_).text
+    server.actions += [ok("I would turn left."), ok(valid)]
+    backend = backend_for(server)
+    with caplog.at_level(logging.DEBUG):
+        assert backend.complete(request_).ok  # prose: a 200, but not a valid answer
+        assert backend.confirmed_format is None and "valid answers" not in caplog.text
+        assert backend.complete(request_).ok
+    assert backend.confirmed_format == "json_schema"
+    assert caplog.text.count("valid answers with response form") == 1
+
+
+def test_explicit_setting_wins(server, request_):
+    valid = RulesBackend().complete(request_).text
+    server.default = llama_cpp_like(valid)
+    backend = backend_for(server, response_format="json_schema")
+    reply = backend.complete(request_)
+    assert reply.error_kind == "transport" and "HTTP 500" in reply.error
+    assert "try auto" in reply.error
+    assert [form_of(s.json) for s in server.seen] == ["json_schema"]  # no step-down
+    server.seen.clear()
+    backend = backend_for(server, response_format="json_object")
+    assert backend.complete(request_).ok
+    assert [form_of(s.json) for s in server.seen] == ["json_object"]  # not the schema form
+
+
+def test_error_not_naming_the_format_does_not_step_down(server, request_):
     server.default = lambda req: Answer(400, b'{"error": "context length exceeded"}')
     backend = backend_for(server)
     reply = backend.complete(request_)
     assert reply.error_kind == "transport" and "HTTP 400" in reply.error
-    assert len(server.seen) == 3  # json_schema, json_object, none
-    assert "response_format" not in server.seen[-1].json
+    assert len(server.seen) == 1  # the request is at fault, not the form
+    assert backend.response_format == "json_schema" and backend.confirmed_format is None
+
+
+def test_every_form_refused_is_a_transport_error(server, request_):
+    server.default = lambda req: Answer(422, b'{"detail": "bad response_format"}')
+    backend = backend_for(server)
+    reply = backend.complete(request_)
+    assert reply.error_kind == "transport" and "HTTP 422" in reply.error
+    assert len(server.seen) == 6 and "json_schema: HTTP 422" in reply.error
     assert backend.response_format == "json_schema"  # nothing worked: nothing remembered
+
+
+def test_max_tokens_sized_from_the_schema(server, request_):
+    server.default = ok('{"reasoning": "x"}')
+    backend_for(server).complete(request_)
+    short = server.seen[-1].json
+    backend_for(server, max_reasoning_chars=2000, max_output_tokens=None).complete(request_)
+    long = server.seen[-1].json
+    # 1,400 more reasoning characters at 2.5 characters a token
+    assert long["max_tokens"] - short["max_tokens"] == pytest.approx(1400 * 1.1 / 2.5, abs=2)
+    assert 100 < short["max_tokens"] <= OpenAIConfig().max_output_tokens
+    backend_for(server, max_output_tokens=64).complete(request_)
+    assert server.seen[-1].json["max_tokens"] == 64  # the configured cap still holds
+    # the prompt shows the compact form: offered choices and the reasoning cap
+    user = short["messages"][1]["content"]
+    assert "at most 600 characters" in user and '"car1"' in user
 
 
 def test_connection_refused_is_a_transport_error(request_):
@@ -329,6 +439,23 @@ def test_planner_prose_then_valid_on_re_ask(server, request_, left_turn_map, obs
     assert core.counters.errors["prose"] == 1 and core.counters.fallbacks == 0
     text = log.read_text()
     assert SECRET not in text and SECRET not in caplog.text
+
+
+def test_planner_truncated_answer_is_re_asked_with_the_cut(server, request_, planner_config,
+                                                           mpc_config, tmp_path):
+    valid = RulesBackend().complete(request_).text
+    cut = valid[:len(valid) // 2]
+    server.actions += [ok(cut, finish_reason="length",
+                          usage={"prompt_tokens": 900, "completion_tokens": 321}), ok(valid)]
+    core = core_for(server, planner_config, mpc_config, tmp_path / "decisions.jsonl")
+    d = core.on_observation(request_.scene.obs)
+    assert d.source == "llm:test-model" and len(server.seen) == 2
+    re_ask = server.seen[1].json["messages"][1]["content"]
+    assert "cut off at the output limit (321 tokens)" in re_ask and "invalid_json" in re_ask
+    assert core.counters.errors["invalid_json"] == 1 and core.counters.fallbacks == 0
+    server.actions.append(ok(valid))
+    reply = backend_for(server).complete(request_)  # a complete answer is not flagged
+    assert reply.ok and not reply.truncated
 
 
 def test_planner_garbage_twice_falls_back(server, request_, planner_config, mpc_config,

@@ -67,6 +67,9 @@ class BackendReply:
     tokens_out: int = 0
     error_kind: Optional[BackendErrorKind] = None
     error: str = ""
+    truncated: bool = False
+    """The server stopped at the output limit (``finish_reason: length``): the text is
+    probably cut off, and the re-ask says so."""
 
     @property
     def ok(self) -> bool:

@@ -26,13 +26,15 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 from typing import Any, Mapping, Optional
 
 from lmpc_llm_planner.backends.base import DecisionRequest
 from lmpc_llm_planner.prompt import answer_outline
 from lmpc_llm_planner.schema import describe_schema
 
-__all__ = ["SYSTEM_PROMPT", "compact_prompt", "describe_schema", "narrow_schema", "neutral_index"]
+__all__ = ["SYSTEM_PROMPT", "compact_prompt", "describe_schema", "longest_answer_chars",
+           "narrow_schema", "neutral_index", "output_token_budget"]
 
 REASONING_FIELD = "reasoning"
 
@@ -166,3 +168,63 @@ SYSTEM_PROMPT = (
     "before or after the object. Use only the agent ids and the indices the message offers."
 )
 """System message of the chat backends: the role and the output format."""
+
+
+UNBOUNDED_ITEMS = 8
+"""Items assumed for an array or free-key object without a bound (the narrowed decision
+schema bounds all of them: this matters only for an un-narrowed schema)."""
+UNBOUNDED_STRING_CHARS = 200
+ESCAPE_FACTOR = 1.1
+"""A string's JSON text is longer than its characters by its escapes (quotes, newlines)."""
+
+
+def longest_answer_chars(schema: Mapping[str, Any],
+                         defs: Optional[Mapping[str, Any]] = None) -> int:
+    """Characters of the longest JSON text ``schema`` allows (every optional field present,
+    arrays full, strings at ``maxLength``, ``", "`` / ``": "`` separators): the output a
+    structured-output server may produce, to size ``max_tokens`` from.
+
+    An upper bound for the decision schemas; a part it does not know counts 12 characters.
+    """
+    defs = defs if defs is not None else (schema.get("$defs") or {})
+    ref = schema.get("$ref")
+    if isinstance(ref, str):
+        return longest_answer_chars(defs.get(ref.split("/")[-1], {}), defs)
+    options = schema.get("anyOf") or schema.get("oneOf")
+    if isinstance(options, list) and options:
+        return max(longest_answer_chars(o, defs) for o in options if isinstance(o, dict))
+    if "enum" in schema:
+        return max((len(json.dumps(v)) for v in schema["enum"]), default=4)
+    kind = schema.get("type")
+    if kind == "object":
+        props = schema.get("properties") or {}
+        parts = [len(json.dumps(k)) + 2 + longest_answer_chars(v, defs)
+                 for k, v in props.items() if isinstance(v, dict)]
+        extra = schema.get("additionalProperties")
+        if isinstance(extra, dict):
+            parts += [24 + longest_answer_chars(extra, defs)] * UNBOUNDED_ITEMS
+        return 2 + sum(parts) + 2 * max(len(parts) - 1, 0)
+    if kind == "array":
+        n = schema.get("maxItems")
+        n = UNBOUNDED_ITEMS if not isinstance(n, int) else n
+        item = longest_answer_chars(schema.get("items") or {}, defs)
+        return 2 + n * item + 2 * max(n - 1, 0)
+    if kind == "string":
+        cap = schema.get("maxLength")
+        cap = UNBOUNDED_STRING_CHARS if not isinstance(cap, int) else cap
+        return 2 + math.ceil(cap * ESCAPE_FACTOR)
+    if kind == "boolean":
+        return 5
+    if kind == "null":
+        return 4
+    return 12  # integer / number / unknown
+
+
+def output_token_budget(schema: Mapping[str, Any], *, chars_per_token: float,
+                        slack_tokens: int) -> int:
+    """``max_tokens`` for an answer of ``schema``: its longest JSON text at
+    ``chars_per_token`` (pick a low ratio: JSON punctuation and ids tokenise poorly) plus
+    ``slack_tokens`` (whitespace, the end token)."""
+    if chars_per_token <= 0.0:
+        raise ValueError(f"chars_per_token must be > 0, got {chars_per_token}")
+    return math.ceil(longest_answer_chars(schema) / chars_per_token) + slack_tokens

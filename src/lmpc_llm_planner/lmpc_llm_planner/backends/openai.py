@@ -9,10 +9,23 @@ earlier LanguageMPC code, and the protocol used here is one POST.
   ``request.deadline_s`` of wall time (the planner's deadline, default 8 s); each
   socket operation gets the time that is left, so the client's own default (600 s in
   the ``openai`` package) never applies. Past the deadline -> ``error_kind="timeout"``.
-- Structured output: ``response_format`` json_schema (the schema narrowed to the
-  request, ``constrain.narrow_schema``); a server that answers HTTP 400 / 422 to it is
-  asked again at once with ``json_object``, then with no format. The first format that
-  works is remembered for this backend instance.
+- Structured output (``openai.response_format``, default ``auto``): the decision schema
+  narrowed to the request (``constrain.narrow_schema``) goes to the server in the first
+  form it accepts, tried in this order (``FORMS``): OpenAI ``json_schema`` (OpenAI, vLLM,
+  llama.cpp's ``llama-server``); ``{"type": "json_object", "schema": ...}``
+  (llama-cpp-python's server, grammar-constrained); Ollama's ``format``; vLLM's
+  ``guided_json``; plain ``json_object``; none. A 4xx / 5xx whose body names the format
+  (``FORMAT_REFUSAL``: llama-cpp-python answers ``json_schema`` with HTTP 500 "Input
+  should be 'text' or 'json_object'") means "not supported": the same call steps down to
+  the next form at once; any other error is a transport error. The first form that gives
+  a valid answer is kept for the rest of the run and logged. An explicit setting is the
+  only form used (no negotiation).
+- Output budget: ``max_tokens`` is what the longest valid answer of the narrowed schema
+  needs (``constrain.output_token_budget``; ``reasoning`` capped at
+  ``max_reasoning_chars``), at most ``max_output_tokens``; the prompt shows that compact
+  answer form (``constrain.compact_prompt``). A reply cut off at ``max_tokens``
+  (``finish_reason: length``) is flagged ``truncated``: the planner's re-ask tells the
+  model so.
 - Tokens in / out from the reply's ``usage`` when present (else 0: the planner then
   uses its estimate).
 - The API key: read once from the environment, sent only in the ``Authorization``
@@ -39,17 +52,27 @@ from dataclasses import dataclass
 from typing import Any, Literal, Mapping, Optional
 
 from lmpc_llm_planner.backends.base import BackendError, BackendReply, DecisionRequest
-from lmpc_llm_planner.backends.constrain import SYSTEM_PROMPT, narrow_schema
+from lmpc_llm_planner.backends.constrain import (
+    SYSTEM_PROMPT,
+    compact_prompt,
+    narrow_schema,
+    output_token_budget,
+)
 from lmpc_llm_planner.config import OpenAIConfig
+from lmpc_llm_planner.validation import parse_decision
 
 LOG = logging.getLogger(__name__)
 
 ENV_BASE_URL = "LMPC_OPENAI_BASE_URL"
 ENV_MODEL = "LMPC_OPENAI_MODEL"
 ENV_KEY_FALLBACK = "OPENAI_API_KEY"
-FORMAT_ORDER: tuple[str, ...] = ("json_schema", "json_object", "none")
-STEP_DOWN_STATUSES = (400, 422)
-"""Answers to a request the server does not accept (e.g. an unsupported response_format)."""
+FORMS: tuple[str, ...] = ("json_schema", "json_object_schema", "ollama_format", "guided_json",
+                          "json_object", "none")
+"""Structured-output forms in the order ``auto`` tries them (strongest constraint first)."""
+FORMAT_REFUSAL = re.compile(
+    r"response_format|json_schema|json_object|guided_json|\bformat\b", re.IGNORECASE)
+"""An error body naming one of these refuses the form, not the request: step down."""
+OUTPUT_SLACK_TOKENS = 32
 MAX_BODY_BYTES = 4_000_000
 """A reply body larger than this is refused (a decision is a few kB)."""
 MAX_ERROR_EXCERPT = 300
@@ -60,7 +83,8 @@ KEY_CHARS = re.compile(r"^[\x21-\x7e]+$")
 KEY_REQUIRED_HOSTS = ("api.openai.com",)
 """Hosts that answer nothing without a key: fail at start-up, not on every call."""
 
-ResponseFormat = Literal["json_schema", "json_object", "none"]
+ResponseFormat = Literal["json_schema", "json_object_schema", "ollama_format", "guided_json",
+                         "json_object", "none"]
 
 
 class _Deadline(Exception):
@@ -122,18 +146,30 @@ def source_name(model: str) -> str:
     return "llm:" + SOURCE_PATTERN.sub("-", model)[:96]
 
 
-def response_format_field(
+def format_fields(
     fmt: ResponseFormat, schema: Mapping[str, Any], *, strict: bool
-) -> Optional[dict[str, Any]]:
-    """The request's ``response_format`` for ``fmt`` (None = leave it out)."""
+) -> dict[str, Any]:
+    """The request fields that ask for structured output in form ``fmt`` (none for none)."""
     if fmt == "json_schema":
-        return {
+        return {"response_format": {
             "type": "json_schema",
             "json_schema": {"name": SCHEMA_NAME, "schema": dict(schema), "strict": strict},
-        }
+        }}
+    if fmt == "json_object_schema":
+        return {"response_format": {"type": "json_object", "schema": dict(schema)}}
+    if fmt == "ollama_format":
+        return {"format": dict(schema)}
+    if fmt == "guided_json":
+        return {"guided_json": dict(schema)}
     if fmt == "json_object":
-        return {"type": "json_object"}
-    return None
+        return {"response_format": {"type": "json_object"}}
+    return {}
+
+
+def refuses_format(status: int, body: bytes) -> bool:
+    """Whether an HTTP error answer says the structured-output form is not supported."""
+    return status >= 400 and bool(FORMAT_REFUSAL.search(body[:MAX_ERROR_EXCERPT * 10]
+                                                        .decode("utf-8", "replace")))
 
 
 class OpenAIBackend:
@@ -170,7 +206,10 @@ class OpenAIBackend:
                 f"openai backend: {self.endpoint.host} needs an API key; set "
                 f"{config.api_key_env} (or {ENV_KEY_FALLBACK}) in the environment"
             )
-        self._format: ResponseFormat = config.response_format
+        self._negotiate = config.response_format == "auto"
+        self._format: ResponseFormat = (
+            "json_schema" if config.response_format == "auto" else config.response_format)
+        self._confirmed: Optional[ResponseFormat] = None
         self._lock = threading.Lock()
         self._ssl = ssl.create_default_context() if self.endpoint.scheme == "https" else None
 
@@ -192,8 +231,13 @@ class OpenAIBackend:
 
     @property
     def response_format(self) -> ResponseFormat:
-        """The structured-output format requests use now (after any step-down)."""
+        """The structured-output form requests use now (after any step-down)."""
         return self._format
+
+    @property
+    def confirmed_format(self) -> Optional[ResponseFormat]:
+        """The form that gave the first valid answer (None before one did)."""
+        return self._confirmed
 
     # -- Backend ---------------------------------------------------------------------------
     def complete(self, request: DecisionRequest) -> BackendReply:
@@ -206,21 +250,26 @@ class OpenAIBackend:
         )
         with self._lock:
             fmt = self._format
-        formats = FORMAT_ORDER[FORMAT_ORDER.index(fmt):]
+        formats = FORMS[FORMS.index(fmt):] if self._negotiate else (fmt,)
         refusals: list[str] = []
         try:
             for fmt in formats:
                 status, body = self._post(self._payload(request, fmt, schema), t_end)
-                if status in STEP_DOWN_STATUSES and fmt != formats[-1]:
+                if status != 200 and fmt != formats[-1] and refuses_format(status, body):
                     refusals.append(f"{fmt}: HTTP {status} {self._excerpt(body)}")
                     continue
                 if status != 200:
+                    hint = "" if self._negotiate or not refuses_format(status, body) else (
+                        f" (openai.response_format {fmt} refused: try auto)")
                     return self._fail(t0, "transport", "; ".join(
                         refusals + [f"HTTP {status} from {self.endpoint.url}: "
-                                    f"{self._excerpt(body)}"]))
-                if fmt != self._format:
+                                    f"{self._excerpt(body)}{hint}"]))
+                if refusals:
                     self._step_down(fmt, refusals)
-                return self._reply(body, t0)
+                reply = self._reply(body, t0)
+                if reply.ok:
+                    self._confirm(fmt, reply.text or "", request)
+                return reply
         except _Deadline:
             return self._fail(t0, "timeout", f"no complete reply from {self.endpoint.url} "
                                              f"within the {request.deadline_s:.1f} s deadline")
@@ -233,25 +282,34 @@ class OpenAIBackend:
                               f"{self._redact(str(exc))}")
         return self._fail(t0, "transport", "no response format left to try")  # unreachable
 
+    def max_tokens(self, schema: Mapping[str, Any]) -> int:
+        """``max_tokens`` of a request with ``schema``: the longest valid answer's need,
+        at most ``max_output_tokens``."""
+        need = output_token_budget(schema, chars_per_token=self.config.output_chars_per_token,
+                                   slack_tokens=OUTPUT_SLACK_TOKENS)
+        cap = self.config.max_output_tokens
+        return need if cap is None else min(need, cap)
+
     # -- internals -------------------------------------------------------------------------
     def _payload(self, request: DecisionRequest, fmt: ResponseFormat,
                  schema: Mapping[str, Any]) -> dict[str, Any]:
+        # The compact answer form (offered choices, the reasoning cap) also guides a model
+        # the server does not constrain (plain json_object / none).
+        user = compact_prompt(request, schema) if self.config.spell_out_choices \
+            else request.prompt
         payload: dict[str, Any] = {
             "model": self.model,
             "messages": [
                 {"role": "system", "content": SYSTEM_PROMPT},
-                {"role": "user", "content": request.prompt},
+                {"role": "user", "content": user},
             ],
             "temperature": self.config.temperature,
+            "max_tokens": self.max_tokens(schema),
             "stream": False,
         }
-        if self.config.max_output_tokens is not None:
-            payload["max_tokens"] = self.config.max_output_tokens
         if self.config.seed is not None:
             payload["seed"] = self.config.seed
-        rf = response_format_field(fmt, schema, strict=self.config.json_schema_strict)
-        if rf is not None:
-            payload["response_format"] = rf
+        payload.update(format_fields(fmt, schema, strict=self.config.json_schema_strict))
         return payload
 
     def _post(self, payload: Mapping[str, Any], t_end: float) -> tuple[int, bytes]:
@@ -317,13 +375,33 @@ class OpenAIBackend:
             latency_s=time.perf_counter() - t0,
             tokens_in=_count(usage, "prompt_tokens"),
             tokens_out=_count(usage, "completion_tokens"),
+            truncated=choice.get("finish_reason") == "length" if isinstance(choice, dict)
+            else False,
         )
 
     def _step_down(self, fmt: ResponseFormat, refusals: list[str]) -> None:
         with self._lock:
+            if FORMS.index(fmt) <= FORMS.index(self._format):
+                return  # another thread already stepped this far
             self._format = fmt
-        LOG.warning("openai backend: %s refused (%s); using response_format %s from now on",
+        LOG.warning("openai backend: %s refused (%s); trying response form %s from now on",
                     self.endpoint.url, "; ".join(refusals), fmt)
+
+    def _confirm(self, fmt: ResponseFormat, text: str, request: DecisionRequest) -> None:
+        """Keep ``fmt`` for the run once it gave a valid answer (and say so, once)."""
+        if self._confirmed is not None:
+            return
+        if parse_decision(text, request=request).error_kind is not None:
+            return  # the model's fault or the form's: not proof that the form works
+        with self._lock:
+            if self._confirmed is not None:
+                return
+            self._confirmed = fmt
+            self._format = fmt
+        # A warning so it shows: the nodes set up no Python logging, and Python's
+        # last-resort handler prints warnings and above only.
+        LOG.warning("openai backend: %s gives valid answers with response form %s; using it "
+                    "for the rest of the run", self.endpoint.url, fmt)
 
     def _fail(self, t0: float, kind: Literal["timeout", "transport"], msg: str) -> BackendReply:
         return BackendReply(text=None, latency_s=time.perf_counter() - t0, error_kind=kind,
