@@ -193,6 +193,11 @@ class PlannerConfig(_Frozen):
     """When set, reported as the latency of every emergency decision (the paper's short
     emergency prompt answers in under 1.5 s), whatever the backend (rules included) and
     whatever ``fixed_latency_s`` says; None: emergencies get the normal latency."""
+    decide_for_effect_time: bool = False
+    """Decide on the observation predicted forward by the latency the decision is expected
+    to have (``lmpc_llm_planner.lookahead``): the declared one (``emergency_latency_s``,
+    ``fixed_latency_s``, a simulated backend's), else the median of the last decisions'
+    latencies, at most ``ttl_s``. At latency 0 (the rules reasoner alone) nothing changes."""
     backend: BackendName = "rules"
     """Which backend answers (see ``lmpc_llm_planner.backends``)."""
     stages: Literal["single", "chained"] = "single"

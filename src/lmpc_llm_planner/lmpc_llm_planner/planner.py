@@ -22,9 +22,10 @@ from __future__ import annotations
 
 import hashlib
 import json
+import statistics
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Optional
@@ -37,6 +38,7 @@ from lmpc_msgs_py.observation import Observation
 
 from lmpc_llm_planner.backends.base import Backend, BackendReply, DecisionRequest
 from lmpc_llm_planner.config import PlannerConfig
+from lmpc_llm_planner.lookahead import predict_observation
 from lmpc_llm_planner.prompt import build_prompt, estimate_tokens, sanitize_instruction
 from lmpc_llm_planner.scene import Scene, agent_kinematics, build_scene
 from lmpc_llm_planner.schema import (
@@ -219,6 +221,9 @@ class PlannerCore:
         self._t_last_request: Optional[float] = None
         self._t_last_emergency: Optional[float] = None
         self._n = 0
+        self._ahead_s = 0.0
+        self._recent_latency: dict[str, deque[float]] = {
+            "normal": deque(maxlen=5), "emergency": deque(maxlen=5)}
         path = log_path if log_path is not None else config.decision_log
         self._log_path = Path(path) if path else None
 
@@ -261,8 +266,11 @@ class PlannerCore:
             self.counters.emergencies += 1
         self.counters.requests += 1
         try:
+            ahead = self._ahead_s = self.expected_latency_s(mode)
+            seen = obs if ahead <= 0.0 else predict_observation(
+                obs, ahead, lookahead_m=self.config.lookahead_m)
             scene = build_scene(
-                obs, lookahead_m=self.config.lookahead_m,
+                seen, candidates_from=obs, lookahead_m=self.config.lookahead_m,
                 max_agents=self.config.max_agents_in_prompt,
             )
         except (ReferencePathError, ValueError, KeyError, IndexError) as exc:
@@ -272,6 +280,23 @@ class PlannerCore:
             self._log({"stamp_s": t, "mode": mode, "error_kind": "scene", "error": str(exc)})
             return None
         return self._decide(scene, mode)
+
+    def expected_latency_s(self, mode: Mode) -> float:
+        """How far ahead a decision requested now is decided for (``decide_for_effect_time``):
+        the latency it will be given if declared, else the median latency of the last
+        decisions of this mode; at most ``ttl_s``; 0 when off."""
+        cfg = self.config
+        if not cfg.decide_for_effect_time:
+            return 0.0
+        declared = cfg.emergency_latency_s if mode == "emergency" else None
+        if declared is None:
+            declared = cfg.fixed_latency_s
+        if declared is None and not getattr(self.backend, "reports_latency", False):
+            declared = getattr(self.backend, "reported_latency_s", None)
+        if declared is None:
+            recent = self._recent_latency[mode]
+            declared = float(statistics.median(recent)) if recent else 0.0
+        return min(max(declared, 0.0), cfg.ttl_s)
 
     # -- one request ----------------------------------------------------------------------
     def _next_meta(self, scene: Scene, *, source: str, mode: Mode, latency_s: float,
@@ -380,6 +405,7 @@ class PlannerCore:
         self.counters.floor_additions += len(floor.added)
         self.counters.decisions += 1
         self.last_decision = decision
+        self._recent_latency[mode].append(decision.latency_s)
         self._log({
             "decision_id": decision.decision_id,
             "stamp_s": decision.stamp_s,
@@ -387,6 +413,7 @@ class PlannerCore:
             "source": decision.source,
             "latency_s": decision.latency_s,
             "measured_latency_s": latency_s,
+            "decided_for_s": self._ahead_s,
             "tokens_in": tokens_in,
             "tokens_out": tokens_out,
             "floor_added": list(floor.added),

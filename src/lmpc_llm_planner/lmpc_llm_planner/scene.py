@@ -324,8 +324,12 @@ def ego_candidates(obs: Observation, *, lookahead_m: float) -> tuple[tuple[Candi
     return _renumber(cands), best
 
 
-def build_scene(obs: Observation, *, lookahead_m: float, max_agents: int) -> Scene:
-    """Analyse ``obs``: ego candidates, route candidate, nearest agents with candidates."""
+def build_scene(obs: Observation, *, lookahead_m: float, max_agents: int,
+                candidates_from: Optional[Observation] = None) -> Scene:
+    """Analyse ``obs``: ego candidates, route candidate, nearest agents with candidates.
+
+    ``candidates_from``: build the ego's candidates from this observation's pose instead
+    (the current one, when ``obs`` is predicted ahead: ``lmpc_llm_planner.lookahead``)."""
     kins = agent_kinematics(obs)
     in_range = [k for k in kins if k.distance_m <= obs.agents.sensing_range_m][:max_agents]
     views = []
@@ -333,11 +337,12 @@ def build_scene(obs: Observation, *, lookahead_m: float, max_agents: int) -> Sce
         cands = agent_candidates(obs, k.agent, lookahead_m=lookahead_m)
         best = closest_heading(list(cands), k.agent.yaw_rad)
         views.append(AgentView(kin=k, candidates=cands, closest_heading_id=best.candidate_id))
-    ego_c, route_id = ego_candidates(obs, lookahead_m=lookahead_m)
+    pose = obs if candidates_from is None else candidates_from
+    ego_c, route_id = ego_candidates(pose, lookahead_m=lookahead_m)
     lanes = {lane.id: lane for lane in obs.map.lanes}
-    here = lanes.get(obs.ego.lane_id or "")
+    here = lanes.get(pose.ego.lane_id or "")
     here_edge = here.edge_id if here is not None else None
-    ahead = _route_edges_ahead(obs.map.ego_route[obs.ego.route_index:], lanes, here_edge)
+    ahead = _route_edges_ahead(pose.map.ego_route[pose.ego.route_index:], lanes, here_edge)
     leaving = frozenset(c.candidate_id for c in ego_c
                         if c.candidate_id != route_id
                         and leaves_route(c, lanes, ahead, here_edge))

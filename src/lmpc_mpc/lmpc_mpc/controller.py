@@ -71,6 +71,9 @@ the route (``MpcController._decision_curve``)."""
 _HEDGE_APART_M = 0.5
 """A close agent's own forecast is added beside the decision's prediction of it when the
 two are farther apart than this at some step (see ``MpcController._problem``)."""
+_HARD_DECEL_FRACTION = 0.8
+"""A crossing the ego cannot clear before the agent arrives is yielded to while a stop
+at this fraction of the maximum deceleration still ends before it (else: commit)."""
 _COMMIT_HOLD_S = 6.0
 """Once the ego commits to pass ahead of a crossing agent, it keeps that commitment this
 long (sim time) while the agent stays a conflict, so it does not stop half-way."""
@@ -109,6 +112,16 @@ class ControllerStats:
 _LEAD_IN_OFF_RAD = math.radians(60.0)
 _LEAD_IN_M = 6.0
 _LEAD_IN_RADIUS_M = 6.0
+
+
+def _time_to_m(dist_m: float, v_mps: float, accel_mps2: float) -> float:
+    """Time to cover ``dist_m`` from ``v_mps`` accelerating at ``accel_mps2``."""
+    v = max(0.0, v_mps)
+    if dist_m <= 0.0:
+        return 0.0
+    if accel_mps2 <= 1e-9:
+        return dist_m / v if v > 1e-9 else math.inf
+    return (-v + math.sqrt(v * v + 2.0 * accel_mps2 * dist_m)) / accel_mps2
 
 
 def rebased_control_points(control_points: Sequence[Sequence[float]], x_m: float,
@@ -223,6 +236,9 @@ class MpcController:
         """Decision id -> what the stale check did while it was in force (first / last
         sim time, steps, agents, go refused steps): for the decision log."""
         self._yielded: list[str] = []
+        self._leaders: list[tuple[str, float]] = []
+        """Agents followed as leaders on the last step, with the reference's limit behind
+        them (the least over the horizon, m along the path)."""
         """Agents the crossing rule of the last ``_lead_limits`` call yielded to."""
 
     # -- decisions -----------------------------------------------------------------------
@@ -433,11 +449,15 @@ class MpcController:
         s_limit = self._lead_limits(coarse, obstacles, speeds)
         refused: tuple[str, ...] = ()
         neutral_hi = cfg.accel_intervals_mps2[cfg.neutral_accel_index][1]
-        if check and bias[0] > neutral_hi and self._yielded:
+        held = self._held_by(ego.v_mps, ref_acc) if check and bias[0] > neutral_hi else ()
+        if check and bias[0] > neutral_hi and (self._yielded or held):
             # the decision says go, the MPC's own crossing rule (on the current state)
-            # yields: the gap the decision relied on has closed. Neutral bias and
-            # reference acceleration; reference curve and weights stay the decision's
-            refused = tuple(self._yielded)
+            # yields, or the way ahead is taken (a leader holds the reference back within
+            # the horizon): the gap the decision relied on has closed, and a go bias
+            # against a held reference made the MPC steer round the car ahead (off the
+            # road; usi 5 at 2.5 s). Neutral bias and reference acceleration; reference
+            # curve and weights stay the decision's
+            refused = tuple(dict.fromkeys(list(self._yielded) + list(held)))
             bias = (0.0, bias[1])
             ref_acc = cfg.reference_accel_mps2
         self._note_stale(decision, StaleVerdict(reattended=reattended, go_refused_for=refused))
@@ -514,6 +534,7 @@ class MpcController:
         This keeps the time-parameterised reference from running through a car
         ahead, so tracking and the safety term do not fight (our choice; the
         paper leaves the reference's speed profile open)."""
+        self._leaders = []
         if not obstacles:
             return None
         cfg, veh = self.config, self.vehicle
@@ -524,7 +545,7 @@ class MpcController:
         s_all, d_all = line.project_many(np.concatenate([ob.xy_m for ob in obstacles]))
         s_all = s_all.reshape(len(obstacles), n + 1)
         d_all = d_all.reshape(len(obstacles), n + 1)
-        crossing: list[tuple[str, float, float, int]] = []
+        crossing: list[tuple[str, float, float, int, int]] = []
         for i, (ob, v) in enumerate(zip(obstacles, speeds_mps)):
             lat_clear = 0.5 * (veh.width_m + ob.width_m) + cfg.safety_lateral_gap_m
             gap = cfg.safety_gap_m + 0.5 * (veh.length_m + ob.length_m)
@@ -535,20 +556,24 @@ class MpcController:
             if on[0] and np.all(np.diff(s_k[on]) >= -1e-6):
                 # a vehicle ahead going our way: follow it at gap + headway
                 limit[on] = np.minimum(limit[on], s_k[on] - gap - cfg.safety_headway_s * v)
+                self._leaders.append((ob.obstacle_id.removesuffix(OWN_SUFFIX),
+                                      float(np.min(limit[on]))))
                 continue
             # crossing or oncoming: its zone on our path and the last step it is there
             k_last = min(n, int(np.max(np.nonzero(on)[0])) + hold_steps)
             crossing.append((ob.obstacle_id, float(np.min(s_k[on])) - gap,
-                             float(np.max(s_k[on])) + gap, k_last))
-        comfort_m = self._ego_v_mps ** 2 / (2.0 * _COMFORT_DECEL_MPS2)
+                             float(np.max(s_k[on])) + gap, int(np.argmax(on)), k_last))
+        v0 = self._ego_v_mps
+        comfort_m = v0 ** 2 / (2.0 * _COMFORT_DECEL_MPS2)
+        hard_m = v0 ** 2 / (2.0 * _HARD_DECEL_FRACTION * veh.max_decel_mps2)
         self._yielded = []
-        for oid, s_enter, _, k_last in crossing:
+        for oid, s_enter, s_exit, k_first, k_last in crossing:
             # never plan to stop inside another crossing agent's zone (blocking the
             # junction): stop before that zone instead (our rule, see docs)
             moved = True
             while moved:
                 moved = False
-                for other, lo, hi, _ in crossing:
+                for other, lo, hi, _, _ in crossing:
                     if other != oid and lo < s_enter < hi:
                         s_enter, moved = lo, True
             since = self._committed.get(oid)
@@ -556,14 +581,29 @@ class MpcController:
                 # committed earlier: as the ego slows, the comfortable stopping distance
                 # shrinks below s_enter; yielding then would stop it half-way, so hold on
                 continue
-            if s_enter < comfort_m:
-                # too close to stop comfortably: commit (pass ahead of it)
+            if s_enter < comfort_m and (
+                    s_enter < hard_m or _time_to_m(s_exit, v0, cfg.reference_accel_mps2)
+                    <= k_first * cfg.dt_s):
+                # too close to stop comfortably, and either it clears the zone before the
+                # agent arrives or it could not stop before the zone even braking hard:
+                # commit (pass ahead of it). Otherwise (it would still be in the zone when
+                # the agent gets there, and a hard stop still ends before it) yield,
+                # braking hard: a bike reaching the crossing the ego was committed to
+                # because it was a little too close to stop comfortably hit it (si 13 at
+                # a 2.5 s decision latency)
                 self._committed[oid] = self._now_s
                 continue
             # stay out of the conflict zone until it has left (plus one headway)
             limit[: k_last + 1] = np.minimum(limit[: k_last + 1], s_enter)
             self._yielded.append(oid.removesuffix(OWN_SUFFIX))
         return None if not np.any(np.isfinite(limit)) else limit
+
+    def _held_by(self, v_mps: float, accel_mps2: float) -> tuple[str, ...]:
+        """Leaders (``_lead_limits``) that hold the reference back within the horizon: their
+        limit is short of where the ego would get accelerating at ``accel_mps2``."""
+        horizon_s = self.config.horizon * self.config.dt_s
+        free = reach_m(v_mps, accel_mps2=accel_mps2, horizon_s=horizon_s)
+        return tuple(oid for oid, lim in self._leaders if lim < free)
 
     def _decision_bias(self, decision: Decision) -> tuple[float, float]:
         veh = self.vehicle
