@@ -237,6 +237,9 @@ class MpcController:
         sim time, steps, agents, go refused steps): for the decision log."""
         self._yielded: list[str] = []
         self._leaders: list[tuple[str, float]] = []
+        self._crossing: list[tuple[str, float, float, int, int]] = []
+        """Crossing agents on the last step: (id, zone entry / exit m along the path, first
+        and last step in the zone)."""
         """Agents followed as leaders on the last step, with the reference's limit behind
         them (the least over the horizon, m along the path)."""
         """Agents the crossing rule of the last ``_lead_limits`` call yielded to."""
@@ -563,6 +566,7 @@ class MpcController:
             k_last = min(n, int(np.max(np.nonzero(on)[0])) + hold_steps)
             crossing.append((ob.obstacle_id, float(np.min(s_k[on])) - gap,
                              float(np.max(s_k[on])) + gap, int(np.argmax(on)), k_last))
+        self._crossing = crossing
         v0 = self._ego_v_mps
         comfort_m = v0 ** 2 / (2.0 * _COMFORT_DECEL_MPS2)
         hard_m = v0 ** 2 / (2.0 * _HARD_DECEL_FRACTION * veh.max_decel_mps2)
@@ -576,14 +580,16 @@ class MpcController:
                 for other, lo, hi, _, _ in crossing:
                     if other != oid and lo < s_enter < hi:
                         s_enter, moved = lo, True
+            clears = s_enter < hard_m or \
+                _time_to_m(s_exit, v0, cfg.reference_accel_mps2) <= k_first * cfg.dt_s
             since = self._committed.get(oid)
-            if since is not None and 0.0 <= self._now_s - since <= _COMMIT_HOLD_S:
+            if since is not None and 0.0 <= self._now_s - since <= _COMMIT_HOLD_S and clears:
                 # committed earlier: as the ego slows, the comfortable stopping distance
                 # shrinks below s_enter; yielding then would stop it half-way, so hold on
+                # (unless the ego would now still be in the zone when the agent gets
+                # there and can stop before it: si 13 at 2.5 s, a bike)
                 continue
-            if s_enter < comfort_m and (
-                    s_enter < hard_m or _time_to_m(s_exit, v0, cfg.reference_accel_mps2)
-                    <= k_first * cfg.dt_s):
+            if s_enter < comfort_m and clears:
                 # too close to stop comfortably, and either it clears the zone before the
                 # agent arrives or it could not stop before the zone even braking hard:
                 # commit (pass ahead of it). Otherwise (it would still be in the zone when

@@ -94,7 +94,10 @@ def test_oncoming_crossing_car_ego_waits(solver: MpcSolver) -> None:
     for t, x, _ in log:
         if -2.0 <= 40.0 - 10.0 * t <= 8.0:
             assert x[0] > 0.0
-    assert log[-1][1][0] < -5.0  # and then it turns left
+    # it yields once, in time: no commit-then-emergency-brake flip-flop (before the hard
+    # yield of issue 23 it braked at -5.4, went on at +2.1, then braked at -6 m/s^2)
+    assert min(c.accel_mps2 for _, _, c in log) > -4.5
+    assert log[-1][1][0] < -1.5 and log[-1][1][2] > 2.0  # and then it turns left
 
 
 def _decision(ego_xy, *, stamp_s: float, latency_s: float = 0.0, ttl_s: float = 5.0,
@@ -427,3 +430,42 @@ def test_a_go_that_became_unsafe_before_taking_effect_is_refused(solver: MpcSolv
     assert ctrl.stats().stale_steps == 0 and all(not c.stale for _, _, c in blind)
     first = {round(t, 1) for t, _ in refused[:5]}  # the go applied there: harder
     assert mean_accel(blind, first) > mean_accel(log, first) + 0.3
+
+
+def test_a_go_is_refused_while_a_car_ahead_holds_the_reference(solver: MpcSolver) -> None:
+    """Issue 23 (usi 5 at a 2.5 s latency). A "go" decided on an empty road takes effect
+    behind a car that has stopped in the ego's lane meanwhile. The reference is held
+    behind the car; a go bias against it made the MPC steer round the car (off the road).
+    The check refuses the go while the car holds the reference: ``Control.stale`` names
+    it, the ego stops behind it in its lane. Check off: the go pushes the ego on harder
+    and it leaves its lane to pass."""
+    m = S.straight_road()
+    start = (10.0, -4.8, 0.0, 8.0)
+    go = _decision(start[:2], stamp_s=0.0, latency_s=2.5, ttl_s=30.0,
+                   accel_idx=len(CFG.accel_intervals_mps2) - 1)
+    go = go.model_copy(update={"attention": ()})
+    assert go.accel_bias_mps2 > 1.0
+
+    def stopped(t: float) -> list[Agent]:
+        # it stopped there after the planner looked
+        return [] if t < 1.0 else [S.agent("car", x_m=70.0, y_m=-4.8, yaw_rad=0.0,
+                                           lane_id="E0_0")]
+
+    def drive(check: bool) -> tuple[list, MpcController]:
+        solver.reset()
+        ctrl = MpcController(CFG.model_copy(update={"stale_decision_check": check}),
+                             solver=solver)
+        ctrl.on_decision(go)
+        return _run(ctrl, m, start, 100, stopped), ctrl
+
+    log, ctrl = drive(True)
+    refused = [c for t, _, c in log if "go" in c.stale]
+    assert refused and all("car" in c.stale for c in refused)
+    assert ctrl.stats().go_refused == len(refused)
+    end = log[-1][1]
+    assert end[3] < 0.5 and 0.5 < 70.0 - end[0] - 4.5 < 8.0  # stopped behind the car
+    assert all(abs(x[1] + 4.8) < 0.6 for _, x, _ in log)  # in its lane throughout
+    blind, _ = drive(False)
+    assert max(abs(x[1] + 4.8) for _, x, _ in blind) > 0.6 and \
+        max(c.accel_mps2 for t, _, c in blind if t >= 2.5) > \
+        max(c.accel_mps2 for t, _, c in log if t >= 2.5) + 0.3
