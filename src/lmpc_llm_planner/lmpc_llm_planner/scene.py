@@ -14,7 +14,14 @@ from typing import Mapping, Optional, Sequence
 
 import numpy as np
 from lmpc_mpc.closeness import closeness, wrap_rad
-from lmpc_mpc.reference import Candidate, candidates_for_pose, closest_heading, route_candidate
+from lmpc_mpc.reference import (
+    WRONG_WAY_RAD,
+    Candidate,
+    candidates_for_pose,
+    closest_heading,
+    heading_off_rad,
+    route_candidate,
+)
 
 from lmpc_msgs_py.messages import Agent, Lane
 from lmpc_msgs_py.observation import Observation
@@ -172,7 +179,11 @@ def agent_candidates(
         obs.map, x_m=agent.x_m, y_m=agent.y_m, yaw_rad=agent.yaw_rad, lane_id=agent.lane_id,
         lookahead_m=lookahead_m,
     )
-    return _renumber(cands) if cands else (_straight_line(agent),)
+    if not cands or min(heading_off_rad(c, agent.yaw_rad) for c in cands) > WRONG_WAY_RAD:
+        # off the map, or against its lane's direction (a pedestrian on a crossing walks
+        # either way): straight on along its heading
+        return (_straight_line(agent),)
+    return _renumber(cands)
 
 
 def _mean_distance_m(a: Candidate, b: Candidate) -> float:

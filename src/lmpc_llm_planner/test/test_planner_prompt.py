@@ -85,3 +85,23 @@ def test_assembler_matches_stamps(left_turn_map, obs_factory):
     asm.on_agents(AgentArray(stamp_s=1.0, seq=10))
     full = asm.complete(obs.ego)
     assert full.agents.stamp_s == 1.0 and full.signals.stamp_s == 1.0
+
+
+def test_an_agent_going_against_its_lane_is_offered_its_heading() -> None:
+    """Issue 23 (si 20 at 2.5 s): a pedestrian walking a crossing against the lane's drawn
+    direction was offered (and predicted along) the lane, i.e. walking backwards. It gets
+    one straight candidate along its heading instead; one going the lane's way keeps the
+    lane candidates."""
+    from lmpc_mpc import synthetic as S
+
+    from lmpc_llm_planner.scene import agent_candidates
+
+    m = S.straight_road()
+    wrong = S.agent("ped", x_m=100.0, y_m=1.6, yaw_rad=0.0, v_mps=1.2, lane_id="-E0_0",
+                    length_m=0.5, width_m=0.5)  # walking east on the westbound lane
+    obs = S.observation(m, S.ego_state(x_m=10.0, y_m=-4.8, yaw_rad=0.0), [wrong])
+    (only,) = agent_candidates(obs, wrong, lookahead_m=60.0)
+    assert only.control_points[-1][0] > 100.0 and not only.lane_ids
+    right = wrong.model_copy(update={"yaw_rad": math.pi})
+    cands = agent_candidates(obs, right, lookahead_m=60.0)
+    assert cands[0].lane_ids and cands[0].control_points[-1][0] < 100.0

@@ -14,7 +14,15 @@ from typing import Sequence
 import numpy as np
 
 from lmpc_msgs_py.messages import Agent, MapSnapshot
-from lmpc_mpc.reference import Candidate, bezier_points, candidates_for_pose, closest_heading
+from lmpc_mpc.reference import (
+    WRONG_WAY_RAD,
+    Candidate,
+    bezier_points,
+    candidates_for_pose,
+    closest_heading,
+    heading_off_rad,
+    straight_candidate,
+)
 
 _SAMPLES = 120
 
@@ -77,7 +85,12 @@ def baseline_candidate(map_: MapSnapshot, agent: Agent, *, lookahead_m: float) -
     """The agent's candidate closest to its current heading (the baseline's guess)."""
     cands = candidates_for_pose(map_, x_m=agent.x_m, y_m=agent.y_m, yaw_rad=agent.yaw_rad,
                                 lane_id=agent.lane_id, lookahead_m=lookahead_m)
-    return closest_heading(cands, agent.yaw_rad)
+    best = closest_heading(cands, agent.yaw_rad)
+    if heading_off_rad(best, agent.yaw_rad) > WRONG_WAY_RAD:
+        # against its lane's direction (a pedestrian walking a crossing the other way was
+        # forecast walking backwards, away from the ego's path: si 20 at a 2.5 s latency)
+        return straight_candidate(agent.x_m, agent.y_m, agent.yaw_rad, lookahead_m)
+    return best
 
 
 def forecast(agent: Agent, control_points: Sequence[Sequence[float]] | None, *,

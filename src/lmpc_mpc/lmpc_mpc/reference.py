@@ -516,22 +516,38 @@ def route_candidate(map: MapSnapshot, ego: EgoState, *, lookahead_m: float = 60.
     return Candidate(0, cps, "follow the route", ids)
 
 
+def heading_off_rad(cand: Candidate, yaw_rad: float) -> float:
+    """How far (rad, 0..pi) the candidate's direction over its first stretch (the chord
+    to the point a quarter along the curve) is from ``yaw_rad``."""
+    pts = cand.sample(40)
+    d = pts[10] - pts[0]
+    if float(np.hypot(*d)) < 1e-6:
+        return 0.0
+    return abs(_wrap(math.atan2(d[1], d[0]) - yaw_rad))
+
+
 def closest_heading(cands: Sequence[Candidate], yaw_rad: float) -> Candidate:
     """The candidate whose direction over its first stretch is closest to ``yaw_rad``.
 
     Ties go to the lower id (keep the lane / go straight)."""
     if not cands:
         raise ReferencePathError("closest_heading needs at least one candidate")
+    return min(cands, key=lambda c: (round(heading_off_rad(c, yaw_rad), 6), c.candidate_id))
 
-    def off(c: Candidate) -> float:
-        pts = c.sample(40)
-        # heading of the chord to the point a quarter along the curve
-        d = pts[10] - pts[0]
-        if float(np.hypot(*d)) < 1e-6:
-            return 0.0
-        return abs(_wrap(math.atan2(d[1], d[0]) - yaw_rad))
 
-    return min(cands, key=lambda c: (round(off(c), 6), c.candidate_id))
+WRONG_WAY_RAD = math.pi / 2.0
+"""An agent heading farther than this from every candidate of its lane goes against the
+lane's drawn direction (a pedestrian on a crossing walks either way): it is forecast
+straight on along its heading instead (``straight_candidate``)."""
+
+
+def straight_candidate(x_m: float, y_m: float, yaw_rad: float, length_m: float) -> Candidate:
+    """One straight-line candidate from (x, y) along ``yaw_rad`` (an APPROXIMATION for an
+    agent off the lane map or going against its lane)."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    pts = tuple((x_m + f * length_m * c, y_m + f * length_m * s) for f in (0.0, 0.5, 1.0))
+    return Candidate(candidate_id=0, control_points=pts,
+                     label="keep its current heading (off the lane map)", lane_ids=())
 
 
 # --- time parameterisation ---------------------------------------------------------------

@@ -130,3 +130,22 @@ def test_a_decision_curve_taking_effect_later_starts_from_the_ego_and_cuts_less(
     assert np.allclose(rebased_control_points(cps, 0.0, 0.0), cps)
     assert np.allclose(rebased_control_points(cps, 25.0, 5.0), cps)
     assert np.allclose(rebased_control_points(cps, 0.5, 0.1), ((0.5, 0.1),) + cps[1:])
+
+
+def test_an_agent_going_against_its_lane_is_forecast_along_its_heading() -> None:
+    """Issue 23 (si 20 at a 2.5 s latency): a pedestrian walking a crossing against the
+    crossing lane's drawn direction was forecast walking backwards, away from the ego's
+    path, and walked into the ego. An agent heading more than 90 degrees off every
+    candidate of its lane is forecast straight on along its heading; one going the lane's
+    way keeps the lane candidate."""
+    from lmpc_mpc.prediction import forecast
+
+    m = S.straight_road()
+    wrong = S.agent("ped", x_m=100.0, y_m=1.6, yaw_rad=0.0, v_mps=1.2, lane_id="-E0_0",
+                    length_m=0.5, width_m=0.5)  # walking east on the westbound lane
+    xy = forecast(wrong, None, map_=m, horizon=30, dt_s=0.1).xy_m
+    assert xy[-1][0] == pytest.approx(100.0 + 3.6, abs=0.05)  # east, not west
+    assert xy[-1][1] == pytest.approx(1.6, abs=0.05)
+    right = wrong.model_copy(update={"yaw_rad": math.pi})
+    xy = forecast(right, None, map_=m, horizon=30, dt_s=0.1).xy_m
+    assert xy[-1][0] == pytest.approx(100.0 - 3.6, abs=0.05)
