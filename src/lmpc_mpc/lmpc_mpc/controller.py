@@ -18,7 +18,7 @@ same observations give the same controls however loaded the machine is.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Optional, Sequence
 
 import numpy as np
@@ -224,6 +224,8 @@ class MpcController:
         sim time, steps, agents, go refused steps): for the decision log."""
         self._yielded: list[str] = []
         """Agents the crossing rule of the last ``_lead_limits`` call yielded to."""
+        self._beside: set[int] = set()
+        """Indices of this step's obstacles that stay beside the path (``_lead_limits``)."""
 
     # -- decisions -----------------------------------------------------------------------
     def on_decision(self, decision: Decision) -> None:
@@ -431,6 +433,9 @@ class MpcController:
             reattended = self._reattend_stale(obs, coarse, agents[:slots], preds, obstacles,
                                               speeds)
         s_limit = self._lead_limits(coarse, obstacles, speeds)
+        if self._beside:
+            obstacles = [replace(ob, beside=True) if i in self._beside else ob
+                         for i, ob in enumerate(obstacles)]
         refused: tuple[str, ...] = ()
         neutral_hi = cfg.accel_intervals_mps2[cfg.neutral_accel_index][1]
         if check and bias[0] > neutral_hi and self._yielded:
@@ -514,6 +519,7 @@ class MpcController:
         This keeps the time-parameterised reference from running through a car
         ahead, so tracking and the safety term do not fight (our choice; the
         paper leaves the reference's speed profile open)."""
+        self._beside = set()
         if not obstacles:
             return None
         cfg, veh = self.config, self.vehicle
@@ -530,6 +536,8 @@ class MpcController:
             gap = cfg.safety_gap_m + 0.5 * (veh.length_m + ob.length_m)
             s_k = s_all[i]
             on = (d_all[i] < lat_clear) & (s_k > 0.0) & (s_k < line.length_m - 1e-6)
+            if not np.any(d_all[i] < lat_clear):
+                self._beside.add(i)  # never on the path: no headway (``Obstacle.beside``)
             if not np.any(on):
                 continue
             if on[0] and np.all(np.diff(s_k[on]) >= -1e-6):
