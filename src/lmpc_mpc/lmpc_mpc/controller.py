@@ -68,6 +68,9 @@ _ON_ROUTE_M = 2.0
 _ON_ROUTE_RAD = math.radians(45.0)
 """A decision curve ending this close to the route, heading along it, is continued along
 the route (``MpcController._decision_curve``)."""
+_BESIDE_STANDING_MPS = 0.5
+"""An attended agent slower than this whose forecast stays laterally clear of the path
+is flagged ``Obstacle.beside`` (no headway in its safety zone)."""
 _HEDGE_APART_M = 0.5
 """A close agent's own forecast is added beside the decision's prediction of it when the
 two are farther apart than this at some step (see ``MpcController._problem``)."""
@@ -536,8 +539,8 @@ class MpcController:
             gap = cfg.safety_gap_m + 0.5 * (veh.length_m + ob.length_m)
             s_k = s_all[i]
             on = (d_all[i] < lat_clear) & (s_k > 0.0) & (s_k < line.length_m - 1e-6)
-            if not np.any(d_all[i] < lat_clear):
-                self._beside.add(i)  # never on the path: no headway (``Obstacle.beside``)
+            if v < _BESIDE_STANDING_MPS and not np.any(d_all[i] < lat_clear):
+                self._beside.add(i)  # standing beside the path: no headway (``Obstacle.beside``)
             if not np.any(on):
                 continue
             if on[0] and np.all(np.diff(s_k[on]) >= -1e-6):
