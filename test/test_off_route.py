@@ -5,7 +5,8 @@ enters an 8.8 m two-lane stub on one lane, its route turns from the other; the c
 to the left, to the right, and both in left-hand traffic): the planner offers the
 route and never a candidate that leaves it as "the route"; the baseline and the rules
 planner reach the target without leaving the route (the bridge would end the episode
-``off_route``), with and without background traffic for the rules planner.
+``off_route``), with and without background traffic for the rules planner; the baseline
+in traffic on the nets whose change is to the near-side lane.
 """
 from __future__ import annotations
 
@@ -72,15 +73,8 @@ def _bench(scene: Path, methods: str, out: Path) -> list[dict[str, str]]:
     return list(csv.DictReader((out / "results.csv").open()))
 
 
-_KNOWN_BAD = ("outer", True, False)
-"""lmpc-rules with background traffic on this net still leaves its route (off_route,
-measured 2026-12-02, not yet understood): marked, not hidden."""
-
-
-@pytest.mark.parametrize("case", [
-    pytest.param(c, marks=pytest.mark.xfail(reason="rules + traffic: off_route, open"))
-    if c == _KNOWN_BAD else c
-    for c in [(n, lh, t) for n, lh in NETS for t in (True, False)]], ids=_ids)
+@pytest.mark.parametrize("case", [(n, lh, t) for n, lh in NETS for t in (True, False)],
+                         ids=_ids)
 def test_planners_reach_the_target_on_the_route(tmp_path: Path,
                                                 case: tuple[str, bool, bool]) -> None:
     need, lh, turns = case
@@ -95,6 +89,34 @@ def test_planners_reach_the_target_on_the_route(tmp_path: Path,
     for row in rows:
         assert row["outcome"] == "reached", row
         assert row["off_route"] == "0" and row["collision"] == "0"
+
+
+_BASELINE_BUSY_OPEN = {"inner"}
+"""The baseline with background traffic on the nets whose change is to the far-side lane
+(measured 2026-12-03: off_route on three of them, a timeout on the fourth): in the junction
+it swerves from a car turning into the same road and runs onto the straight-on road. Open
+(issue 21); marked, not hidden."""
+
+
+@pytest.mark.parametrize("case", [
+    pytest.param(c, marks=pytest.mark.xfail(reason="baseline + traffic, far-side change: "
+                                            "off_route / timeout, open"))
+    if c[0] in _BASELINE_BUSY_OPEN else c
+    for c in [(n, lh, t) for n, lh in NETS for t in (True, False)]], ids=_ids)
+def test_baseline_reaches_the_target_in_traffic(tmp_path: Path,
+                                                case: tuple[str, bool, bool]) -> None:
+    """The baseline with background traffic: before the MPC's "beside" rule (no time
+    headway on a standing car whose forecast stays clear of the path) it stopped for good
+    at the junction exit, behind nothing: a car waiting at the stop line of the opposite
+    lane of the road it turned into sat nearly dead ahead in the turn's frame."""
+    need, lh, turns = case
+    net = make_short_lc_net(tmp_path, need=need, left_hand=lh, entry_turns=turns)
+    busy = tmp_path / "busy.yaml"
+    busy.write_text(scene_yaml(net, need=need, left_hand=lh, background=True))
+    rows = _bench(busy, "mpc", tmp_path / "busy")
+    assert len(rows) == 1
+    assert rows[0]["outcome"] == "reached", rows[0]
+    assert rows[0]["off_route"] == "0" and rows[0]["collision"] == "0"
 
 
 def test_graph_mock_always_candidate_0_follows_the_route(tmp_path: Path, domain_id: int) -> None:

@@ -313,7 +313,26 @@ def _keeps_deviation(traj: BezierTrajectory, scene: Scene) -> bool:
     rest = pts[i:]
     off = np.min(np.hypot(rest[:, None, 0] - route[None, :, 0],
                           rest[:, None, 1] - route[None, :, 1]), axis=1)
-    return bool(np.max(off) > KEEP_DEVIATION_M)
+    if not np.max(off) > KEEP_DEVIATION_M:
+        return False
+    # A curve that runs along a candidate leaving the route (``Scene.leaving_ids``) is no
+    # manoeuvre worth keeping: it is an older route candidate that, seen from nearer the
+    # junction, turns out to be the wrong lane's junction choice (issue 21: kept by two
+    # emergency answers, it took the ego straight on past its turn, off its route).
+    return _nearest_candidate(rest, scene) not in scene.leaving_ids
+
+
+def _nearest_candidate(pts: np.ndarray, scene: Scene) -> int:
+    """The offered ego candidate nearest to the (M, 2) curve ``pts`` (mean distance of
+    the curve's points to the candidate's samples)."""
+    best, best_d = scene.route_candidate_id, math.inf
+    for c in scene.ego_candidates:
+        s = c.sample(200)
+        d = float(np.mean(np.min(np.hypot(pts[:, None, 0] - s[None, :, 0],
+                                          pts[:, None, 1] - s[None, :, 1]), axis=1)))
+        if d < best_d:
+            best, best_d = c.candidate_id, d
+    return best
 
 
 @dataclass(frozen=True)

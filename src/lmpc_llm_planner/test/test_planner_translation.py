@@ -121,7 +121,13 @@ def test_emergency_keeps_the_previous_trajectory_while_on_it(scene, mpc_config):
     trajectory where that left the route (a lane change or turn under way is not pulled
     back to the route candidate); with no previous decision, once the ego is off that
     curve, or when the previous decision followed the route, the route candidate from
-    the current pose; every offered agent is attended either way."""
+    the current pose; every offered agent is attended either way. (This map's other
+    candidates are the junction's other turns, which leave the route: treated here as
+    deviations that stay on it, ``leaving_ids`` emptied; the next test has the
+    route-leaving case.)"""
+    from dataclasses import replace
+
+    scene = replace(scene, leaving_ids=frozenset())
     route = scene.ego_candidates[scene.route_candidate_id]
     other = next(i for i, c in enumerate(scene.ego_candidates)
                  if float(np.max(np.hypot(*(c.sample(50) - route.sample(50)).T))) > 5.0)
@@ -147,3 +153,29 @@ def test_emergency_keeps_the_previous_trajectory_while_on_it(scene, mpc_config):
     again = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META,
                       previous=moved)  # an older route-following curve: the fresh one wins
     assert flat(again.ego_trajectory.control_points) == pytest.approx(flat(route.control_points))
+
+
+def test_emergency_does_not_keep_a_curve_along_a_candidate_leaving_the_route(scene,
+                                                                             mpc_config):
+    """Issue 21: an older decision's curve that now runs along a candidate leaving the
+    route (``Scene.leaving_ids``: the wrong lane's straight-on choice before a short
+    edge's lane change) is no manoeuvre to keep: the emergency answer takes the route
+    candidate (kept, it took the ego straight on past its turn, off its route)."""
+    from dataclasses import replace
+
+    assert scene.leaving_ids  # this map's other candidates are turns off the route
+    scene = replace(scene, leaving_ids=frozenset())
+    route = scene.ego_candidates[scene.route_candidate_id]
+    other = next(i for i, c in enumerate(scene.ego_candidates)
+                 if float(np.max(np.hypot(*(c.sample(50) - route.sample(50)).T))) > 5.0)
+    before = translate(wire(ego=other, attention=[], trajectories={}, accel=3, steer=2),
+                       scene=scene, mpc_config=mpc_config, meta=META)
+    kept = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META,
+                     previous=before)
+    assert kept.ego_trajectory == before.ego_trajectory  # a deviation under way: kept
+    leaving = replace(scene, leaving_ids=frozenset({other}))
+    dropped = translate(_emergency_wire(), scene=leaving, mpc_config=mpc_config, meta=META,
+                        previous=before)
+    assert dropped.ego_trajectory.candidate_id == scene.route_candidate_id
+    assert flat(dropped.ego_trajectory.control_points) == \
+        pytest.approx(flat(route.control_points))

@@ -18,7 +18,7 @@ same observations give the same controls however loaded the machine is.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Optional, Sequence
 
 import numpy as np
@@ -68,6 +68,9 @@ _ON_ROUTE_M = 2.0
 _ON_ROUTE_RAD = math.radians(45.0)
 """A decision curve ending this close to the route, heading along it, is continued along
 the route (``MpcController._decision_curve``)."""
+_BESIDE_STANDING_MPS = 0.5
+"""An attended agent slower than this whose forecast stays laterally clear of the path
+is flagged ``Obstacle.beside`` (no headway in its safety zone)."""
 _HEDGE_APART_M = 0.5
 """A close agent's own forecast is added beside the decision's prediction of it when the
 two are farther apart than this at some step (see ``MpcController._problem``)."""
@@ -243,6 +246,8 @@ class MpcController:
         """Agents followed as leaders on the last step, with the reference's limit behind
         them (the least over the horizon, m along the path)."""
         """Agents the crossing rule of the last ``_lead_limits`` call yielded to."""
+        self._beside: set[int] = set()
+        """Indices of this step's obstacles that stay beside the path (``_lead_limits``)."""
 
     # -- decisions -----------------------------------------------------------------------
     def on_decision(self, decision: Decision) -> None:
@@ -450,6 +455,9 @@ class MpcController:
             reattended = self._reattend_stale(obs, coarse, agents[:slots], preds, obstacles,
                                               speeds)
         s_limit = self._lead_limits(coarse, obstacles, speeds)
+        if self._beside:
+            obstacles = [replace(ob, beside=True) if i in self._beside else ob
+                         for i, ob in enumerate(obstacles)]
         refused: tuple[str, ...] = ()
         neutral_hi = cfg.accel_intervals_mps2[cfg.neutral_accel_index][1]
         held = self._held_by(ego.v_mps, ref_acc) if check and bias[0] > neutral_hi else ()
@@ -538,6 +546,7 @@ class MpcController:
         ahead, so tracking and the safety term do not fight (our choice; the
         paper leaves the reference's speed profile open)."""
         self._leaders = []
+        self._beside = set()
         if not obstacles:
             return None
         cfg, veh = self.config, self.vehicle
@@ -554,6 +563,8 @@ class MpcController:
             gap = cfg.safety_gap_m + 0.5 * (veh.length_m + ob.length_m)
             s_k = s_all[i]
             on = (d_all[i] < lat_clear) & (s_k > 0.0) & (s_k < line.length_m - 1e-6)
+            if v < _BESIDE_STANDING_MPS and not np.any(d_all[i] < lat_clear):
+                self._beside.add(i)  # standing beside the path: no headway (``Obstacle.beside``)
             if not np.any(on):
                 continue
             if on[0] and np.all(np.diff(s_k[on]) >= -1e-6):

@@ -95,6 +95,13 @@ class Obstacle:
     width_m: float
     virtual: bool = False
     """A red-light stop line: no headway, a small gap."""
+    beside: bool = False
+    """Its forecast stays laterally clear of the ego's reference path over the whole
+    horizon (``MpcController._lead_limits``): it never enters the path, so no headway
+    (a time gap belongs to a car the ego follows or meets on its path). Otherwise, in
+    a tight turn out of a junction, a car standing at the stop line of the opposite lane
+    of the road turned into sits nearly dead ahead in the frame of the turn's tangent,
+    and its headway held the ego in the junction for good (issue 21)."""
 
 
 @dataclass(frozen=True)
@@ -389,6 +396,7 @@ class MpcSolver:
         length = np.array([ob.length_m for ob in obs])[:, None]
         width = np.array([ob.width_m for ob in obs])[:, None]
         virtual = np.array([ob.virtual for ob in obs])[:, None]
+        beside = np.array([ob.beside for ob in obs])[:, None]
         cos_r, sin_r = np.cos(yaw_ref), np.sin(yaw_ref)
         lon_ahead = (xy[:, :, 0] - ref[:, 0]) * cos_r + (xy[:, :, 1] - ref[:, 1]) * sin_r
         lat_clear = half_w + 0.5 * width + cfg.safety_lateral_gap_m
@@ -398,7 +406,7 @@ class MpcSolver:
         gap_k = np.where(virtual, half_l + 1.0,
                          np.where(ahead, cfg.safety_gap_m + half_l + 0.5 * length,
                                   half_l + 0.5 * length + 0.5))
-        head = np.where(virtual | ~ahead, 0.0, cfg.safety_headway_s)
+        head = np.where(virtual | ~ahead | beside, 0.0, cfg.safety_headway_s)
         d_hat_ref = gap_k + head * ref[:, 3]
         rows = np.empty((n_o, n + 1, NOBS))
         rows[:, :, 0:2] = xy

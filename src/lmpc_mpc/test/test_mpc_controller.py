@@ -469,3 +469,57 @@ def test_a_go_is_refused_while_a_car_ahead_holds_the_reference(solver: MpcSolver
     assert max(abs(x[1] + 4.8) for _, x, _ in blind) > 0.6 and \
         max(c.accel_mps2 for t, _, c in blind if t >= 2.5) > \
         max(c.accel_mps2 for t, _, c in log if t >= 2.5) + 0.3
+
+
+def test_standing_agent_beside_the_path_gets_no_headway(solver: MpcSolver) -> None:
+    """Issue 21: in a tight turn out of a junction, a car standing at the stop line of the
+    opposite lane of the road turned into sits nearly dead ahead in the frame of the turn's
+    tangent; with the time headway on it the ego stopped in the junction for good. A
+    standing agent whose forecast stays laterally clear of the path is flagged ``beside``
+    (no headway in the solver); one standing on the path, or a moving one beside it, is
+    not."""
+    from lmpc_mpc.controller import _Polyline
+    from lmpc_mpc.solver import Obstacle
+
+    ctrl = _ctrl(solver)
+    ctrl._ego_v_mps, ctrl._now_s = 2.0, 0.0
+    # a quarter turn to the left (radius 8 m) from heading east to north, then north
+    th = np.linspace(0.0, math.pi / 2, 30)
+    path = np.vstack([np.c_[8.0 * np.sin(th), 8.0 - 8.0 * np.cos(th)],
+                      np.c_[np.full(20, 8.0), np.linspace(8.5, 40.0, 20)]])
+    n = CFG.horizon
+
+    def still(x: float, y: float) -> np.ndarray:
+        return np.tile([x, y], (n + 1, 1))
+
+    obstacles = [Obstacle("beside", still(11.2, 14.0), 4.5, 1.8),   # opposite lane, 3.2 m over
+                 Obstacle("on", still(8.0, 20.0), 4.5, 1.8),        # standing in the path
+                 Obstacle("moving", np.c_[np.full(n + 1, 11.2),
+                                          np.linspace(30.0, 10.0, n + 1)], 4.5, 1.8)]
+    ctrl._lead_limits(_Polyline.of(path), obstacles, [0.0, 0.0, 7.0])
+    assert ctrl._beside == {0}
+
+
+def test_beside_obstacle_has_no_headway_in_the_safety_zone(solver: MpcSolver) -> None:
+    from dataclasses import replace
+
+    from lmpc_mpc.solver import Obstacle
+
+    n = CFG.horizon
+    ob = Obstacle("car", np.tile([20.0, 3.2], (n + 1, 1)), 4.5, 1.8)
+    ref = np.c_[np.linspace(0.0, 30.0, n + 1), np.zeros(n + 1), np.zeros(n + 1),
+                np.full(n + 1, 10.0)]
+    yaw = np.zeros(n + 1)
+    for flag, want in ((False, CFG.safety_headway_s), (True, 0.0)):
+        prob = _headway_problem(replace(ob, beside=flag), ref)
+        rows = solver._obstacle_rows(prob, ref, yaw)
+        assert rows[0, 0, 3] == pytest.approx(want)
+
+
+def _headway_problem(ob, ref):
+    from lmpc_mpc.solver import MpcProblem
+
+    n = CFG.horizon
+    return MpcProblem(x0=(0.0, 0.0, 0.0, 10.0), u_prev=(0.0, 0.0), u_prev2=(0.0, 0.0),
+                      reference=ref, reference_curvature_1pm=np.zeros(n + 1),
+                      weights=CFG.weights_for(None), bias=(0.0, 0.0), obstacles=(ob,))
