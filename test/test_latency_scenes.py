@@ -15,10 +15,9 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 
-# the scenes named by the issue; si 13 and usi 14 still collide with the check
-# (docs/lmpc_mpc.md, "Stale decisions"): strict xfails, so a fix shows up here
+# the scenes named by the issue (all four reach since the MPC changes of 2026-12-03:
+# docs/lmpc_mpc.md, "stale decisions, second round")
 SCENES = [("si", 13), ("si", 20), ("usi", 14), ("usi", 21)]
-STILL_COLLIDES = {("si", 13), ("usi", 14)}
 
 
 @pytest.fixture(scope="module")
@@ -41,9 +40,7 @@ def _row(run: Path, family: str, seed: int) -> dict[str, str]:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("family,seed", [
-    pytest.param(f, s, marks=pytest.mark.xfail(strict=True, reason="still collides"))
-    if (f, s) in STILL_COLLIDES else (f, s) for f, s in SCENES])
+@pytest.mark.parametrize("family,seed", SCENES)
 def test_scene_reaches_without_collision_at_2_5_s(
         latency_run: Path, family: str, seed: int) -> None:
     row = _row(latency_run, family, seed)
