@@ -8,6 +8,7 @@ docs/ARCHITECTURE.md, "Adding a method".
 """
 from __future__ import annotations
 
+import importlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,11 +20,20 @@ from lmpc_bridge.evaluation.scenes import SceneSpec, Wiring
 
 @dataclass(frozen=True)
 class Method:
-    """A registry entry: its name, one line for ``--list-methods`` and its factory."""
+    """A registry entry: its name, one line for ``--list-methods`` and its factory, a
+    function or ``"module:function"`` (imported when the method first runs, so a method
+    in a module of its own may import this one and heavy dependencies stay unloaded)."""
 
     name: str
     summary: str
-    build: Callable[[SceneSpec], Wiring]
+    factory: Callable[[SceneSpec], Wiring] | str
+
+    def build(self, spec: SceneSpec) -> Wiring:
+        factory = self.factory
+        if isinstance(factory, str):
+            module, _, name = factory.partition(":")
+            factory = getattr(importlib.import_module(module), name)
+        return factory(spec)
 
 
 _SOLVER: Any = None  # one compiled MPC solver per process (building all sizes takes ~1.5 s)
@@ -109,7 +119,7 @@ def make_planner(method: str, instruction: Optional[str] = None, *,
     return core
 
 
-def _controller_cells(controller: Any, log_path: Optional[Path]) -> dict[str, Any]:
+def controller_cells(controller: Any, log_path: Optional[Path]) -> dict[str, Any]:
     """The MPC's row cells; its stale-decision checks go to the scene's decision log."""
     cstats = controller.stats()
     if log_path is not None and controller.stale_log:
@@ -126,7 +136,7 @@ def _controller_cells(controller: Any, log_path: Optional[Path]) -> dict[str, An
 def build_mpc(spec: SceneSpec) -> Wiring:
     """The MPC baseline: no planner (the instruction is ignored)."""
     controller = make_controller()
-    return Wiring(None, controller, lambda log: _controller_cells(controller, log))
+    return Wiring(None, controller, lambda log: controller_cells(controller, log))
 
 
 def build_lmpc(spec: SceneSpec) -> Wiring:
@@ -135,7 +145,7 @@ def build_lmpc(spec: SceneSpec) -> Wiring:
                            latency=spec.latency, planner_config=spec.planner_config,
                            backend=spec.backend)
     controller = make_controller()
-    return Wiring(planner, controller, lambda log: _controller_cells(controller, log))
+    return Wiring(planner, controller, lambda log: controller_cells(controller, log))
 
 
 def build_replay(spec: SceneSpec) -> Wiring:
@@ -153,7 +163,7 @@ def build_replay(spec: SceneSpec) -> Wiring:
     controller = make_controller()
 
     def finish(log: Optional[Path]) -> dict[str, Any]:
-        cells = _controller_cells(controller, log)
+        cells = controller_cells(controller, log)
         hits = planner.backend.hits
         cells["replay_unmatched"] = hits["miss"]
         cells["replay_answered"] = sum(hits.values()) - hits["miss"]
