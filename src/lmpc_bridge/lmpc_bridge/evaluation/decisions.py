@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from lmpc_bridge.evaluation.rows import percentile
+from lmpc_bridge.evaluation.table import markdown
 
 _LOG_NAME = re.compile(r"^(?P<family>.+)-(?P<seed>\d{3,})-(?P<method>lmpc-[a-z]+)\.jsonl$")
 
@@ -53,16 +54,15 @@ def decision_stats(log_dir: Path) -> dict[str, dict[str, dict[str, Any]]]:
 
 
 def stats_md(stats: dict[str, dict[str, dict[str, Any]]]) -> str:
-    lines = ["| Scenario | Method | Mode | Decisions | Fallbacks | Valid 1st | Latency med / "
-             "p95 / max s | Tokens in med / max | Tokens out med |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    for family, methods in stats.items():
-        for method, modes in methods.items():
-            for mode, a in modes.items():
-                lines.append(
-                    f"| {family.upper()} | {method} | {mode} | {a['decisions']} | "
-                    f"{a['fallbacks']} | {a['valid_first_answer']:.0%} | "
-                    f"{a['latency_s_median']:.2f} / {a['latency_s_p95']:.2f} / "
-                    f"{a['latency_s_max']:.2f} | {a['tokens_in_median']:.0f} / "
-                    f"{a['tokens_in_max']:.0f} | {a['tokens_out_median']:.0f} |")
-    return "\n".join(lines) + "\n"
+    """The planner figures: one row a family, method and decision mode."""
+    rows = [[family.upper(), method, mode, f"{a['decisions']}", f"{a['fallbacks']}",
+             f"{a['valid_first_answer']:.0%}",
+             f"{a['latency_s_median']:.2f} / {a['latency_s_p95']:.2f} / "
+             f"{a['latency_s_max']:.2f}",
+             f"{a['tokens_in_median']:.0f} / {a['tokens_in_max']:.0f}",
+             f"{a['tokens_out_median']:.0f}"]
+            for family, methods in stats.items() for method, modes in methods.items()
+            for mode, a in modes.items()]
+    return markdown(["Scenario", "Method", "Mode", "Decisions", "Fallbacks", "Valid 1st",
+                     "Latency med / p95 / max s", "Tokens in med / max", "Tokens out med"],
+                    rows)

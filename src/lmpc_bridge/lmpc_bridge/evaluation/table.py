@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import statistics
-from typing import Any
+from typing import Any, Iterable, Sequence
 
 from lmpc_bridge.evaluation.rows import BASELINE
 
@@ -43,17 +43,23 @@ def aggregate(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]
     return out
 
 
+def markdown(header: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
+    """A Markdown table: the header, its rule and one line a row of cells."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(cells) + " |" for cells in rows]
+    return "\n".join(lines) + "\n"
+
+
 def table_md(summary: dict[str, dict[str, dict[str, Any]]]) -> str:
-    lines = ["| Scenario | Method | Coll. | Fail | Off route | Ineff | Time | Acc | Dist | O.C. "
-             "| vs MPC |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    """Table I: one row a family and method."""
+    rows = []
     for family, methods in summary.items():
         for method, a in methods.items():
             change = a.get("oc_change_vs_mpc")
-            lines.append(
-                f"| {family.upper()} | {method} | {a['collisions']} | {a['fails']} | "
-                f"{a.get('off_route', 0)} | "
-                f"{a['ineff']:.1f} | {a['time_s']:.1f} | {a['pen_acc']:.2f} | "
-                f"{a['pen_dist']:.2f} | {a['overall_cost']:.1f} | "
-                f"{'' if change is None or method == BASELINE else f'{change:+.1%}'} |")
-    return "\n".join(lines) + "\n"
+            rows.append([
+                family.upper(), method, f"{a['collisions']}", f"{a['fails']}",
+                f"{a.get('off_route', 0)}", f"{a['ineff']:.1f}", f"{a['time_s']:.1f}",
+                f"{a['pen_acc']:.2f}", f"{a['pen_dist']:.2f}", f"{a['overall_cost']:.1f}",
+                "" if change is None or method == BASELINE else f"{change:+.1%}"])
+    return markdown(["Scenario", "Method", "Coll.", "Fail", "Off route", "Ineff", "Time",
+                     "Acc", "Dist", "O.C.", "vs MPC"], rows)
