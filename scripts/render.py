@@ -228,25 +228,19 @@ def run_in_process(family: str, seed: int, method: str, *, work_dir: Path,
     """
     if method not in METHODS:
         raise RenderError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+    from lmpc_bridge.evaluation.scenes import SceneSpec
     from lmpc_bridge.runner import run_episode
     from lmpc_bridge.sim import SumoSim
-    from lmpc_mpc.config import load_mpc_config
-    from lmpc_mpc.controller import MpcController
+    from lmpc_scripts.methods import build
 
-    try:
-        from lmpc_scripts.benchmark import make_planner
-    except ImportError:  # run as a plain script from a source tree
-        from benchmark import make_planner  # type: ignore[no-redef]
-
-    planner = make_planner(method)
-    recorder = _RecordingPlanner(planner) if planner is not None else None
+    wiring = build(SceneSpec(method, family, seed))
+    recorder = _RecordingPlanner(wiring.planner) if wiring.planner is not None else None
     sim = SumoSim(work_dir=Path(work_dir))
     try:
         if max_time_s is None:
             max_time_s = _scene_max_time_s(family, seed, Path(work_dir))
-        result = run_episode(sim, family=family, seed=seed,
-                             controller=MpcController(load_mpc_config()), planner=recorder,
-                             max_time_s=float(max_time_s))
+        result = run_episode(sim, family=family, seed=seed, controller=wiring.controller,
+                             planner=recorder, max_time_s=float(max_time_s))
         snapshot, scene = sim.map, sim.scene
     finally:
         sim.close()

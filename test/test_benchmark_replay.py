@@ -76,7 +76,7 @@ def test_a_scene_without_a_recorded_log_gets_an_error_row_naming_the_file(
 
 
 def test_replay_check_calls_a_repeat_only_with_every_prompt_found_and_the_same_row() -> None:
-    from lmpc_scripts import benchmark
+    from lmpc_bridge.evaluation.replay import replay_check
 
     recorded = [{"family": "eoa", "seed": s, "method": "lmpc-local", "outcome": "reached",
                  "time_s": 120.0, "overall_cost": 244.6886} for s in range(5)]
@@ -92,8 +92,8 @@ def test_replay_check_calls_a_repeat_only_with_every_prompt_found_and_the_same_r
             replayed(2, oc=244.7),              # another cost
             replayed(3, time_s=120.1),          # another time
             replayed(4, outcome="collision")]
-    lines = benchmark.replay_check(rows, recorded, "lmpc-local")
+    lines = replay_check(rows, recorded, "lmpc-local")
     verdicts = [line.split(": ")[1] for line in lines]
     assert verdicts == ["exact repeat", "differs", "differs", "differs", "differs"], lines
-    assert benchmark.replay_check(rows[:1], recorded, "lmpc-rules")[0].endswith(
+    assert replay_check(rows[:1], recorded, "lmpc-rules")[0].endswith(
         "no recorded lmpc-rules row to compare with")

@@ -1,4 +1,4 @@
-"""The benchmark's planner figures from decision logs (``benchmark.decision_stats``), on
+"""The benchmark's planner figures from decision logs (``lmpc_bridge.evaluation.decisions``), on
 hand-made logs whose answers are counted by hand."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from lmpc_scripts import benchmark
+from lmpc_bridge.evaluation.decisions import decision_stats, stats_md
 
 
 def _rec(mode: str, latency_s: float, first_error: str | None, *, source: str = "llm:x",
@@ -27,7 +27,7 @@ def test_decision_stats_counts_validity_latency_and_tokens(tmp_path: Path) -> No
     (logs / "usi-000-lmpc-local.jsonl").write_text("\n".join(json.dumps(r) for r in a))
     (logs / "usi-001-lmpc-local.jsonl").write_text("\n".join(json.dumps(r) for r in b) + "\n")
     (logs / "notes.txt").write_text("not a log")
-    stats = benchmark.decision_stats(logs)
+    stats = decision_stats(logs)
     normal = stats["usi"]["lmpc-local"]["normal"]
     assert normal["decisions"] == 4 and normal["fallbacks"] == 1
     assert normal["valid_first_answer"] == pytest.approx(0.5)  # 2 of 4 first answers
@@ -36,5 +36,5 @@ def test_decision_stats_counts_validity_latency_and_tokens(tmp_path: Path) -> No
     assert normal["tokens_in_median"] == 900 and normal["tokens_in_max"] == 1100
     emergency = stats["usi"]["lmpc-local"]["emergency"]
     assert emergency["decisions"] == 1 and emergency["tokens_in_max"] == 600
-    table = benchmark.stats_md(stats)
+    table = stats_md(stats)
     assert "| USI | lmpc-local | normal | 4 | 1 | 50% |" in table

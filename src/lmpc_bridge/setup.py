@@ -7,7 +7,7 @@ package_name = "lmpc_bridge"
 setup(
     name=package_name,
     version="0.1.0",
-    packages=[package_name, package_name + ".scenarios"],
+    packages=[package_name, package_name + ".scenarios", package_name + ".evaluation"],
     package_data={package_name: ["config/*.yaml", "data/*"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),

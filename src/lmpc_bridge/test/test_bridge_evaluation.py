@@ -1,0 +1,51 @@
+"""The evaluation library (``lmpc_bridge.evaluation``): it stays inside the bridge's arrow,
+and its Table I on a hand-made summary."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from lmpc_bridge.evaluation.rows import latency_cells, parse_seeds
+from lmpc_bridge.evaluation.table import aggregate, table_md
+
+
+def test_the_evaluation_library_imports_neither_the_planner_nor_the_mpc() -> None:
+    code = ("import sys\n"
+            "import lmpc_bridge.evaluation.scenes, lmpc_bridge.evaluation.rows\n"
+            "import lmpc_bridge.evaluation.replay, lmpc_bridge.evaluation.table\n"
+            "import lmpc_bridge.evaluation.decisions\n"
+            "print(sorted(m for m in sys.modules if m.startswith(('lmpc_mpc', "
+            "'lmpc_llm_planner', 'lmpc_scripts'))))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.strip() == "[]", out
+
+
+def _row(family: str, method: str, seed: int, oc: float, *, outcome: str = "reached",
+         ) -> dict:
+    return {"family": family, "method": method, "seed": seed, "outcome": outcome,
+            "collision": int(outcome == "collision"), "fail": int(outcome == "timeout"),
+            "off_route": 0, "ineff": 1.0, "time_s": 10.0, "pen_acc": 0.5, "pen_dist": 0.25,
+            "overall_cost": oc, "stale_steps": 0, "steps": 100}
+
+
+def test_table_i_puts_mpc_first_and_gives_each_method_its_change_against_it() -> None:
+    rows = [_row("usi", "lmpc-rules", 0, 90.0),
+            _row("usi", "lmpc-rules", 1, 70.0, outcome="collision"),
+            _row("usi", "mpc", 0, 100.0), _row("usi", "mpc", 1, 100.0)]
+    summary = aggregate(rows)
+    assert list(summary["usi"]) == ["mpc", "lmpc-rules"]
+    assert summary["usi"]["lmpc-rules"]["collisions"] == 1
+    assert summary["usi"]["lmpc-rules"]["oc_change_vs_mpc"] == -0.2
+    lines = table_md(summary).splitlines()
+    assert lines[0].startswith("| Scenario | Method | Coll. |") and lines[1] == "|---" * 11 + "|"
+    assert lines[2] == "| USI | mpc | 0 | 0 | 0 | 1.0 | 10.0 | 0.50 | 0.25 | 100.0 |  |"
+    assert lines[3].endswith("| 80.0 | -20.0% |"), lines[3]
+
+
+def test_latency_cells_are_empty_for_the_baseline_and_where_nothing_is_simulated() -> None:
+    assert latency_cells("mpc", (2.5, 1.5)) == {"latency_s": "", "emergency_latency_s": ""}
+    assert latency_cells("lmpc-rules", (None, None))["latency_s"] == ""
+    assert latency_cells("lmpc-rules", (2.5, 1.5)) == {"latency_s": 2.5,
+                                                       "emergency_latency_s": 1.5}
+    assert parse_seeds("0,3,5-7") == [0, 3, 5, 6, 7]
