@@ -128,13 +128,7 @@ def test_emergency_keeps_the_previous_trajectory_while_on_it(scene, mpc_config):
     from dataclasses import replace
 
     scene = replace(scene, leaving_ids=frozenset())
-    route = scene.ego_candidates[scene.route_candidate_id]
-    other = next(i for i, c in enumerate(scene.ego_candidates)
-                 if float(np.max(np.hypot(*(c.sample(50) - route.sample(50)).T))) > 5.0)
-    before = translate(wire(ego=other, attention=[], trajectories={}, accel=3, steer=2),
-                       scene=scene, mpc_config=mpc_config, meta=META)
-    kept = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META,
-                     previous=before)
+    route, other, before, kept = _deviation_then_emergency(scene, mpc_config)
     assert kept.ego_trajectory == before.ego_trajectory
     assert set(kept.attention) == set(scene.agent_ids)
     fresh = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META)
@@ -155,6 +149,19 @@ def test_emergency_keeps_the_previous_trajectory_while_on_it(scene, mpc_config):
     assert flat(again.ego_trajectory.control_points) == pytest.approx(flat(route.control_points))
 
 
+def _deviation_then_emergency(scene, mpc_config):
+    """The route candidate, a candidate > 5 m away from it, a decision taking that one,
+    and an emergency answer translated with that decision as the previous one."""
+    route = scene.ego_candidates[scene.route_candidate_id]
+    other = next(i for i, c in enumerate(scene.ego_candidates)
+                 if float(np.max(np.hypot(*(c.sample(50) - route.sample(50)).T))) > 5.0)
+    before = translate(wire(ego=other, attention=[], trajectories={}, accel=3, steer=2),
+                       scene=scene, mpc_config=mpc_config, meta=META)
+    kept = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META,
+                     previous=before)
+    return route, other, before, kept
+
+
 def test_emergency_does_not_keep_a_curve_along_a_candidate_leaving_the_route(scene,
                                                                              mpc_config):
     """Issue 21: an older decision's curve that now runs along a candidate leaving the
@@ -165,13 +172,7 @@ def test_emergency_does_not_keep_a_curve_along_a_candidate_leaving_the_route(sce
 
     assert scene.leaving_ids  # this map's other candidates are turns off the route
     scene = replace(scene, leaving_ids=frozenset())
-    route = scene.ego_candidates[scene.route_candidate_id]
-    other = next(i for i, c in enumerate(scene.ego_candidates)
-                 if float(np.max(np.hypot(*(c.sample(50) - route.sample(50)).T))) > 5.0)
-    before = translate(wire(ego=other, attention=[], trajectories={}, accel=3, steer=2),
-                       scene=scene, mpc_config=mpc_config, meta=META)
-    kept = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META,
-                     previous=before)
+    route, other, before, kept = _deviation_then_emergency(scene, mpc_config)
     assert kept.ego_trajectory == before.ego_trajectory  # a deviation under way: kept
     leaving = replace(scene, leaving_ids=frozenset({other}))
     dropped = translate(_emergency_wire(), scene=leaving, mpc_config=mpc_config, meta=META,
