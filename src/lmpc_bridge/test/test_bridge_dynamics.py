@@ -73,6 +73,12 @@ def test_clamp_bounds_and_rate() -> None:
     assert out.steer_rad == -VEH.max_steer_rad
     ok = clamp_control(1.0, 0.05, prev_steer_rad=0.0, dt_s=0.1, vehicle=VEH)
     assert ok == (1.0, 0.05, False)
+    # over the rate limit by the solver's tolerance (3e-8 rad): applied at the limit, not
+    # flagged; by 1e-5: flagged
+    limit = VEH.max_steer_rate_radps * 0.1
+    tiny = clamp_control(1.0, limit + 3e-8, prev_steer_rad=0.0, dt_s=0.1, vehicle=VEH)
+    assert tiny.steer_rad == pytest.approx(limit, abs=1e-12) and not tiny.clamped
+    assert clamp_control(1.0, limit + 1e-5, prev_steer_rad=0.0, dt_s=0.1, vehicle=VEH).clamped
 
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf, None])
