@@ -23,9 +23,13 @@ STREAM = QoSProfile(
 # publisher sends step 0's message to the readers it knows at that instant only; with this
 # the late match still delivers it. Subscribers use STREAM (volatile): compatible, no
 # history, so a restarted node never sees old observations or decisions.
+# Depth 100: a reliable KEEP_LAST writer overwrites samples a slow reader has not yet
+# acknowledged; at ~15x real time the recorder, busy opening its bag connections at
+# step 0, lost the first 14 controls with depth 10 (CI, test_graph_record). Volatile
+# subscribers (every node) get no history, so the depth only matters to recorders.
 PRODUCED = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
-    depth=10,
+    depth=100,
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
