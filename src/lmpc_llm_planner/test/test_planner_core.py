@@ -211,3 +211,30 @@ def test_emergency_latency_is_honoured_separately(left_turn_map, obs_factory, pl
         latency_overrides(-1.0, None, period_s=2.5, ttl_s=5.0)
     with pytest.raises(ValueError, match="expire before taking effect"):
         cfg_with(planner_config, fixed_latency_s=5.0)
+
+
+def test_decide_for_effect_time_predicts_by_the_expected_latency(
+        left_turn_map, obs_factory, planner_config, mpc_config):
+    """``decide_for_effect_time`` (issue 23; off by default): the scene is the observation
+    predicted by the latency the decision is expected to get - the declared one (normal /
+    emergency), else the median of the last decisions'; off: 0."""
+    off = PlannerCore(cfg_with(planner_config, fixed_latency_s=2.5), RulesBackend(), mpc_config)
+    assert off.expected_latency_s("normal") == 0.0
+    on = cfg_with(planner_config, decide_for_effect_time=True, fixed_latency_s=2.5,
+                  emergency_latency_s=1.5)
+    backend = Recording()
+    core = PlannerCore(on, backend, mpc_config)
+    assert (core.expected_latency_s("normal"), core.expected_latency_s("emergency")) == \
+        (2.5, 1.5)
+    obs = obs_factory(left_turn_map, ego_v_mps=8.0)
+    core.on_observation(obs)
+    seen = backend.requests[-1].scene.obs.ego
+    # the ego seen by the backend is 2.5 s further along its route at 8 m/s (a = 0)
+    assert math.hypot(seen.x_m - obs.ego.x_m, seen.y_m - obs.ego.y_m) == \
+        pytest.approx(20.0, abs=0.5)
+    assert seen.stamp_s == obs.ego.stamp_s
+    measured = PlannerCore(cfg_with(planner_config, decide_for_effect_time=True),
+                           Recording(sleep_s=0.02), mpc_config)
+    assert measured.expected_latency_s("normal") == 0.0  # nothing measured yet
+    measured.on_observation(obs)
+    assert 0.02 <= measured.expected_latency_s("normal") < 2.0

@@ -239,13 +239,13 @@ class MpcController:
         """Decision id -> what the stale check did while it was in force (first / last
         sim time, steps, agents, go refused steps): for the decision log."""
         self._yielded: list[str] = []
+        """Agents the crossing rule of the last ``_lead_limits`` call yielded to."""
         self._leaders: list[tuple[str, float]] = []
+        """Agents followed as leaders on the last step, with the reference's limit behind
+        them (the least over the horizon, m along the path)."""
         self._crossing: list[tuple[str, float, float, int, int]] = []
         """Crossing agents on the last step: (id, zone entry / exit m along the path, first
         and last step in the zone)."""
-        """Agents followed as leaders on the last step, with the reference's limit behind
-        them (the least over the horizon, m along the path)."""
-        """Agents the crossing rule of the last ``_lead_limits`` call yielded to."""
         self._beside: set[int] = set()
         """Indices of this step's obstacles that stay beside the path (``_lead_limits``)."""
 
