@@ -27,6 +27,7 @@ import math
 from typing import Optional
 
 import numpy as np
+from lmpc_mpc.controller import stop_distance_m
 from lmpc_mpc.prediction import forecast
 from lmpc_mpc.reference import _Polyline, lane_at, route_path, route_progress
 
@@ -42,12 +43,8 @@ OFF_ROUTE_RAD = math.radians(25.0)
 """An ego farther from its route line, or turned farther from it, is extrapolated along
 its own heading instead (it is not following the route line: a dodge, a stop mid-turn);
 within ``OFF_ROUTE_M`` it keeps its offset (a car in the next lane stays there)."""
-STOP_STATES = frozenset({"r", "y", "u"})
-"""Link states the MPC stops the ego for (a predicted ego does not pass them)."""
 LEADER_GAP_M = 2.0
 """A predicted ego stays this far (bumper to bumper) behind a predicted leader."""
-COMFORT_DECEL_MPS2 = 3.0
-"""The MPC's comfortable deceleration (a yellow closer than its stopping distance is passed)."""
 _NEXT_STATE = {"G": "y", "g": "y", "y": "r", "u": "r"}
 """What a switching link becomes (never more permissive; red stays red)."""
 
@@ -68,12 +65,11 @@ def _lane_pos(map_: MapSnapshot, lane_id: Optional[str], x_m: float, y_m: float)
 
 
 def predict_ego(map_: MapSnapshot, ego: EgoState, dt_s: float, *,
-                accel_mps2: Optional[float] = None,
                 stop_within_m: Optional[float] = None) -> tuple[EgoState, float]:
     """The ego ``dt_s`` ahead (see the module docstring) and the distance it travelled, at
-    ``accel_mps2`` (default: its current acceleration), stopping within ``stop_within_m``
-    (a red light's stop line) if it would pass it."""
-    dist, v_end = travel_m(ego.v_mps, ego.a_mps2 if accel_mps2 is None else accel_mps2, dt_s)
+    its current acceleration, stopping within ``stop_within_m`` (a red light's stop line,
+    a leader) if it would pass it."""
+    dist, v_end = travel_m(ego.v_mps, ego.a_mps2, dt_s)
     dist = max(dist, 0.0)
     if stop_within_m is not None and dist > stop_within_m:
         dist, v_end = max(0.0, stop_within_m), 0.0
@@ -155,19 +151,6 @@ def predict_link(link: LinkSignal, dt_s: float, travel: float) -> Optional[LinkS
     return link.model_copy(update=update)
 
 
-def _stop_line_m(obs: Observation) -> Optional[float]:
-    """How far the ego's box centre may still travel before the next link when the MPC
-    stops it there (red, yellow it can still stop for: ``MpcController._stop_distance``),
-    or None."""
-    links = sorted(obs.signals.links, key=lambda lk: lk.distance_m)
-    if not links or links[0].state not in STOP_STATES:
-        return None
-    nxt, v = links[0], obs.ego.v_mps
-    if nxt.state == "y" and nxt.distance_m < v * v / (2.0 * COMFORT_DECEL_MPS2):
-        return None
-    return max(0.0, nxt.distance_m - 0.5 * obs.ego.length_m - 1.0)
-
-
 def _leader_room_m(obs: Observation, predicted: tuple[Agent, ...]) -> Optional[float]:
     """How far the ego may travel along its route line before it would close up to the
     nearest agent predicted ahead of it on that line, going its way (bumper gap
@@ -187,16 +170,15 @@ def _leader_room_m(obs: Observation, predicted: tuple[Agent, ...]) -> Optional[f
     return None if room is None else max(0.0, room)
 
 
-def predict_observation(obs: Observation, dt_s: float, *, lookahead_m: float,
-                        ego_accel_mps2: Optional[float] = None) -> Observation:
-    """``obs`` as predicted ``dt_s`` ahead (module docstring); ``obs`` itself for 0.
-    ``ego_accel_mps2``: the ego's acceleration meanwhile (default: its current one)."""
+def predict_observation(obs: Observation, dt_s: float, *, lookahead_m: float) -> Observation:
+    """``obs`` as predicted ``dt_s`` ahead (module docstring); ``obs`` itself for 0."""
     if dt_s <= 0.0:
         return obs
     agents = tuple(predict_agent(obs.map, a, dt_s, lookahead_m=lookahead_m)
                    for a in obs.agents.agents)
-    stops = [m for m in (_stop_line_m(obs), _leader_room_m(obs, agents)) if m is not None]
-    ego, travel = predict_ego(obs.map, obs.ego, dt_s, accel_mps2=ego_accel_mps2,
+    stops = [m for m in (stop_distance_m(obs, length_m=obs.ego.length_m),
+                         _leader_room_m(obs, agents)) if m is not None]
+    ego, travel = predict_ego(obs.map, obs.ego, dt_s,
                               stop_within_m=min(stops) if stops else None)
     links = tuple(lk for lk in (predict_link(lk, dt_s, travel) for lk in obs.signals.links)
                   if lk is not None)

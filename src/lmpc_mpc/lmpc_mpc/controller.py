@@ -127,6 +127,21 @@ def _time_to_m(dist_m: float, v_mps: float, accel_mps2: float) -> float:
     return (-v + math.sqrt(v * v + 2.0 * accel_mps2 * dist_m)) / accel_mps2
 
 
+def stop_distance_m(obs: Observation, *, length_m: float) -> Optional[float]:
+    """How far the ego's box centre may still go before the next signal link when the MPC
+    stops it there (red, or yellow it can still stop for comfortably), or None."""
+    links = sorted(obs.signals.links, key=lambda lk: lk.distance_m)
+    if not links:
+        return None
+    nxt = links[0]
+    if nxt.state not in _STOP_STATES:
+        return None
+    v = obs.ego.v_mps
+    if nxt.state == "y" and nxt.distance_m < v * v / (2.0 * _COMFORT_DECEL_MPS2):
+        return None  # too close to stop comfortably on yellow: go on
+    return max(0.0, nxt.distance_m - 0.5 * length_m - _STOP_MARGIN_M)
+
+
 def rebased_control_points(control_points: Sequence[Sequence[float]], x_m: float,
                            y_m: float) -> np.ndarray:
     """A decision curve's control points from where the ego is now: its position, then
@@ -243,9 +258,6 @@ class MpcController:
         self._leaders: list[tuple[str, float]] = []
         """Agents followed as leaders on the last step, with the reference's limit behind
         them (the least over the horizon, m along the path)."""
-        self._crossing: list[tuple[str, float, float, int, int]] = []
-        """Crossing agents on the last step: (id, zone entry / exit m along the path, first
-        and last step in the zone)."""
         self._beside: set[int] = set()
         """Indices of this step's obstacles that stay beside the path (``_lead_limits``)."""
 
@@ -577,7 +589,6 @@ class MpcController:
             k_last = min(n, int(np.max(np.nonzero(on)[0])) + hold_steps)
             crossing.append((ob.obstacle_id, float(np.min(s_k[on])) - gap,
                              float(np.max(s_k[on])) + gap, int(np.argmax(on)), k_last))
-        self._crossing = crossing
         v0 = self._ego_v_mps
         comfort_m = v0 ** 2 / (2.0 * _COMFORT_DECEL_MPS2)
         hard_m = v0 ** 2 / (2.0 * _HARD_DECEL_FRACTION * veh.max_decel_mps2)
@@ -773,16 +784,7 @@ class MpcController:
 
     def _stop_distance(self, obs: Observation) -> Optional[float]:
         """Arc length along the reference where the box centre must stop (red light)."""
-        links = sorted(obs.signals.links, key=lambda lk: lk.distance_m)
-        if not links:
-            return None
-        nxt = links[0]
-        if nxt.state not in _STOP_STATES:
-            return None
-        v = obs.ego.v_mps
-        if nxt.state == "y" and nxt.distance_m < v * v / (2.0 * _COMFORT_DECEL_MPS2):
-            return None  # too close to stop comfortably on yellow: go on
-        return max(0.0, nxt.distance_m - 0.5 * self.vehicle.length_m - _STOP_MARGIN_M)
+        return stop_distance_m(obs, length_m=self.vehicle.length_m)
 
     # -- output --------------------------------------------------------------------------
     def _brake(self, obs: Observation, status: str, *, decision_id: Optional[str],
