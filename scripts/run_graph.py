@@ -300,6 +300,9 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
                          "/lmpc/ego_state besides the graph's own (your monitor; it should "
                          "subscribe to the ego state once it hears the topics it watches)")
     ap.add_argument("--quiet", action="store_true", help="do not echo node logs")
+    ap.add_argument("--profile", action="store_true",
+                    help="print where the time of a step goes (per node and stage; always in "
+                         "the summary JSON as 'profile_ms')")
     ap.add_argument("--instruction", metavar="TEXT",
                     help="the user's instruction (e.g. 'drive conservatively'), published on "
                          "/lmpc/instruction before the episode starts")
@@ -341,13 +344,15 @@ def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, 
             "extra_subscribers": int(args.record) + args.extra_subscribers,
         },
         # the wall-time budget of a solve is enforced only when the clock is real
-        "mpc": {"use_sim_time": True, "clock_mode": args.clock},
+        "mpc": {"use_sim_time": True, "clock_mode": args.clock,
+                "profile_file": str(run_dir / "profile_mpc.json")},
     }
     if args.scene is not None:
         params["bridge"]["scene_file"] = str(args.scene.resolve())
     if args.planner not in ("none", "mock"):
         params["planner"] = {"use_sim_time": True, "backend": args.planner,
-                             "run_dir": str(run_dir)}
+                             "run_dir": str(run_dir),
+                             "profile_file": str(run_dir / "profile_planner.json")}
         for name in ("decision_latency", "emergency_latency"):
             if getattr(args, name) is not None:
                 params["planner"][f"{name}_s"] = float(getattr(args, name))
@@ -365,6 +370,7 @@ def run(args: argparse.Namespace, stops: Optional[StopSignals] = None) -> dict[s
     """Run one episode; ``stops``: the installed stop-signal handler (main() installs
     one; without it a signal ends the process as Python's defaults do)."""
     stops = stops or StopSignals()
+    args.start_epoch_s = time.time()
     stamp = time.strftime("%Y%m%d-%H%M%S")
     # a scene file names the folder by its stem (its checked `name` is not known before
     # the build, and a failed build keeps its summary in this folder too)
@@ -373,7 +379,8 @@ def run(args: argparse.Namespace, stops: Optional[StopSignals] = None) -> dict[s
     run_dir = args.run_dir or Path("runs") / f"{label}-{stamp}"
     run_dir = run_dir.resolve()
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "episode.json").unlink(missing_ok=True)
+    for name in ("episode.json", *PROFILE_FILES.values()):
+        (run_dir / name).unlink(missing_ok=True)
     if args.scene is not None:
         # Check the scene file and its network before any node starts (the bridge reuses
         # this build); problems only SUMO can see come from the bridge ("scene error:").
@@ -589,6 +596,8 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
         "late_controls": episode.get("late_controls", 0),
         "mpc_solve_ms": episode.get("mpc_solve_ms", {}),
         "control_latency_ms": episode.get("control_latency_ms", {}),
+        **wall_split(episode, getattr(args, "start_epoch_s", None)),
+        "profile_ms": read_profiles(run_dir, episode),
         "metrics": metrics,
         "warnings": episode.get("warnings", []),
         "signals": list(signals),
@@ -599,6 +608,46 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
         "bag": str(run_dir / "bag") if args.record else None,
     }
     return _write_summary(summary, run_dir, args)
+
+
+PROFILE_FILES = {"mpc": "profile_mpc.json", "planner": "profile_planner.json"}
+"""Stage times the MPC and the planner write when they end (the bridge's are in episode.json)."""
+
+
+def wall_split(episode: dict[str, Any], start_epoch_s: Optional[float]) -> dict[str, object]:
+    """``startup_wall_s`` (run start to step 0) and ``episode_wall_s`` (step 0 to the
+    episode's end), from the bridge's wall-clock stamps; None where a stamp is missing."""
+    step0, end = episode.get("step0_epoch_s"), episode.get("end_epoch_s")
+    startup = None if step0 is None or start_epoch_s is None else step0 - start_epoch_s
+    span = None if step0 is None or end is None else end - step0
+    sim_s = float(episode.get("sim_time_s", 0.0))
+    return {"startup_wall_s": None if startup is None else round(startup, 3),
+            "episode_wall_s": None if span is None else round(span, 3),
+            "episode_real_time_factor": round(sim_s / span, 2) if span else None}
+
+
+def read_profiles(run_dir: Path, episode: dict[str, Any]) -> dict[str, object]:
+    """Per node, per stage: n / median / p99 / max / total ms (``lmpc_msgs_py.profiling``)."""
+    out: dict[str, object] = {}
+    if episode.get("profile_ms"):
+        out["bridge"] = episode["profile_ms"]
+    for node, name in PROFILE_FILES.items():
+        try:
+            out[node] = json.loads((run_dir / name).read_text())["stages_ms"]
+        except (OSError, ValueError, KeyError):
+            continue  # the node did not run, or died before writing it
+    return out
+
+
+def profile_table(profile: dict[str, Any]) -> str:
+    """The ``--profile`` table: one row per node and stage."""
+    rows = [f"{'node':8} {'stage':58} {'n':>6} {'median':>8} {'p99':>8} {'max':>8} "
+            f"{'total':>9}  (ms)"]
+    for node, stages in profile.items():
+        for stage, st in stages.items():
+            rows.append(f"{node:8} {stage[:58]:58} {st['n']:6d} {st['median']:8.3f} "
+                        f"{st['p99']:8.3f} {st['max']:8.3f} {st['total']:9.1f}")
+    return "\n".join(rows)
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -617,6 +666,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         f"solve_ms={summary['mpc_solve_ms']} latency_ms={summary['control_latency_ms']} "
         f"O.C.={metrics.get('overall_cost')} "
         f"run_dir={summary['run_dir']}")
+    _say(f"[run_graph] startup_wall={summary.get('startup_wall_s')}s "
+         f"episode_wall={summary.get('episode_wall_s')}s "
+         f"episode_rtf={summary.get('episode_real_time_factor')}")
+    if args.profile and summary.get("profile_ms"):
+        _say(profile_table(summary["profile_ms"]))  # type: ignore[arg-type]
     if summary["detail"]:
         _say(f"[run_graph] {summary['detail']}")
     for line in summary.get("warnings") or []:

@@ -73,9 +73,28 @@ def test_usi_reaches_target_without_collision(
         assert s["decisions"] == 0
     for key in ("mpc_solve_ms", "control_latency_ms"):
         assert s[key]["median"] is not None and s[key]["p99"] >= s[key]["median"]
+    _check_profile(s, planner)
 
     # The graph in sync mode and the in-process benchmark run the same logic.
     row = in_process[(METHOD[planner], seed)]
     assert row["outcome"] == s["outcome"]
     graph_oc = s["metrics"]["overall_cost"]
     assert float(row["overall_cost"]) == pytest.approx(graph_oc, rel=0.02), (row, s["metrics"])
+
+
+def _check_profile(s: dict[str, Any], planner: str) -> None:
+    """Where the time went (issue 19): every node's stage times, one sample per step, and
+    the wall split of the run; no mirror is built without a subscriber."""
+    assert 0.0 < s["startup_wall_s"] < s["wall_time_s"]
+    assert 0.0 < s["episode_wall_s"] < s["wall_time_s"] - s["startup_wall_s"]
+    prof = s["profile_ms"]
+    assert set(prof) == ({"bridge", "mpc", "planner"} if planner == "rules"
+                         else {"bridge", "mpc"})
+    steps = prof["bridge"]["sim step"]["n"]
+    assert steps == round(s["sim_time_s"] / 0.1)
+    assert prof["mpc"]["solve"]["n"] >= steps  # step 0 may be offered twice at start-up
+    assert prof["bridge"]["wait: control (transport + MPC)"]["n"] == steps
+    # nobody subscribes to the mirrors here: their stage is the subscriber check alone
+    assert prof["mpc"]["mirrors (paths, markers)"]["median"] < 1.0
+    if planner == "rules":
+        assert prof["planner"]["decide (core, backend)"]["n"] >= steps

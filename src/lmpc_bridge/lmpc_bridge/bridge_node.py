@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import math
-import statistics
 import sys
 import tempfile
 import time
@@ -48,6 +47,7 @@ from lmpc_msgs_py.messages import (
     SignalStates,
 )
 from lmpc_msgs_py.observation import Observation
+from lmpc_msgs_py.profiling import percentiles
 
 
 class BridgeConfig(BaseModel):
@@ -88,6 +88,7 @@ class BridgeConfig(BaseModel):
 class _StepTiming:
     published_wall_s: float
     control_latency_ms: Optional[float] = None
+    control_wall_s: Optional[float] = None
 
 
 @dataclass
@@ -102,13 +103,8 @@ class _RunStats:
 def _percentiles(values: list[float]) -> dict[str, Optional[float]]:
     if not values:
         return {"median": None, "p99": None, "max": None}
-    ordered = sorted(values)
-    p99 = ordered[min(len(ordered) - 1, math.ceil(0.99 * len(ordered)) - 1)]
-    return {
-        "median": round(statistics.median(ordered), 3),
-        "p99": round(p99, 3),
-        "max": round(ordered[-1], 3),
-    }
+    stats = percentiles(values)
+    return {key: stats[key] for key in ("median", "p99", "max")}
 
 
 def _stamp(t_s: float) -> TimeMsg:
@@ -165,6 +161,8 @@ class BridgeNode(LmpcNode):
         self.next_progress_s = 0.0
         self.waiting_since = time.monotonic()
         self.finished_wall_s = 0.0
+        self.step0_epoch_s: Optional[float] = None
+        self.last_publish_wall_s: Optional[float] = None
 
         self.pub_map.publish(self.sim.map)
         if self.cfg.clock_mode == "sync":
@@ -190,7 +188,8 @@ class BridgeNode(LmpcNode):
         k = round(msg.stamp_s / self.sim.dt_s)
         timing = self.timing.get(k)
         if timing is not None and timing.control_latency_ms is None:
-            timing.control_latency_ms = (time.monotonic() - timing.published_wall_s) * 1e3
+            timing.control_wall_s = time.monotonic()
+            timing.control_latency_ms = (timing.control_wall_s - timing.published_wall_s) * 1e3
         if self.latest_control is None or msg.stamp_s >= self.latest_control.stamp_s:
             self.latest_control = msg
         if self.cfg.clock_mode == "sync":
@@ -226,14 +225,23 @@ class BridgeNode(LmpcNode):
         # the MPC wait BARRIER_WAIT_S on every step until the next decision, so every
         # control would come too late. Realtime decisions act when they arrive.
         required = self.required_decision_id if self.cfg.clock_mode == "sync" else None
-        obs: Observation = self.sim.observe(required_decision_id=required)
+        times = self.stage_times
+        with times.stage("observe"):
+            obs: Observation = self.sim.observe(required_decision_id=required)
         t = obs.stamp_s
         self.pub_clock.publish(Clock(clock=_stamp(t)))
-        self.timing[obs.ego.seq] = _StepTiming(published_wall_s=time.monotonic())
+        now = time.monotonic()
+        if self.last_publish_wall_s is not None:
+            times.add("step cycle (publish to publish)", (now - self.last_publish_wall_s) * 1e3)
+        else:
+            self.step0_epoch_s = time.time()
+        self.last_publish_wall_s = now
+        self.timing[obs.ego.seq] = _StepTiming(published_wall_s=now)
         self.pub_ego.publish(obs.ego)
         self.pub_agents.publish(obs.agents)
         self.pub_signals.publish(obs.signals)
-        self._publish_odom(obs.ego)
+        with times.stage("publish odometry"):
+            self._publish_odom(obs.ego)
         self.waiting_since = time.monotonic()
         if t >= self.next_progress_s:
             self.next_progress_s = t + self.cfg.progress_period_s
@@ -278,7 +286,12 @@ class BridgeNode(LmpcNode):
         timing = self.timing.pop(k, None)
         if timing is not None and timing.control_latency_ms is not None and control is not None:
             self.stats.latency_ms.append(timing.control_latency_ms)
-        self.sim.step(control)
+            self.stage_times.add("wait: control (transport + MPC)", timing.control_latency_ms)
+            if timing.control_wall_s is not None:
+                self.stage_times.add("wait: after the control (planner status)",
+                                     (time.monotonic() - timing.control_wall_s) * 1e3)
+        with self.stage_times.stage("sim step"):
+            self.sim.step(control)
         status = self.sim.status()
         if status.outcome != "running":
             self._finish(status)
@@ -405,6 +418,9 @@ class BridgeNode(LmpcNode):
             "mpc_solve_ms": _percentiles(self.stats.solve_ms),
             "control_latency_ms": _percentiles(self.stats.latency_ms),
             "dropped_messages": self.counters.get("dropped_messages", 0),
+            "step0_epoch_s": self.step0_epoch_s,
+            "end_epoch_s": time.time(),
+            "profile_ms": self.stage_times.summary(),
             "warnings": warnings,
             "record": self.sim.record().to_json(),
         }

@@ -51,6 +51,7 @@ class DecisionNode(LmpcNode):
         super().__init__(name)
         self.declare_parameter("ego_id", "")
         self.declare_bridge_gone_exit()
+        self.declare_profile_output()
         self.ego_id = self.get_parameter("ego_id").value or None
         self.core: Optional[CoreLike] = None
         self.assembler = ObservationAssembler()
@@ -136,7 +137,8 @@ class DecisionNode(LmpcNode):
             self.log_event("stale", f"ego state at t={ego.stamp_s:.2f} s is older than "
                            f"{STALE_AFTER_S} s vs /clock: no new decision")
         elif self.core is not None:
-            decision = self._safe_decide(obs)
+            with self.stage_times.stage("decide (core, backend)"):
+                decision = self._safe_decide(obs)
             if decision is not None:
                 self._decision_pub.publish(decision)
                 self._last_decision_id = decision.decision_id

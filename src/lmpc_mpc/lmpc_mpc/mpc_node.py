@@ -49,6 +49,7 @@ class MpcNode(LmpcNode):
         ego_id = self.get_parameter("ego_id").get_parameter_value().string_value
         self.ego_id = ego_id or None
         self.declare_bridge_gone_exit()
+        self.declare_profile_output()
         self.declare_parameter("clock_mode", "", ParameterDescriptor(
             description="the bridge's clock mode: 'realtime' enforces the solver's wall-time "
                         "budget, 'sync' only counts overruns ('' = the config's "
@@ -181,6 +182,8 @@ class MpcNode(LmpcNode):
                 signals = self._newest(self._signals, ego.stamp_s)
                 self.counters["unpaired_signals"] += 1
             self._pending.pop(0)
+            self.stage_times.add("wait: inputs paired (ego received to compute)",
+                                 (time.monotonic() - wall) * 1e3)
             if agents is None:
                 agents = AgentArray(stamp_s=max(0.0, ego.stamp_s - 1e3), seq=0)
             if signals is None:
@@ -194,7 +197,12 @@ class MpcNode(LmpcNode):
         return store[max(older)] if older else None
 
     def _compute(self, obs: Observation, now_s: float) -> None:
+        t0 = time.perf_counter()
         ctl = self.controller.compute(obs, now_s=now_s if now_s > 0.0 else None)
+        compute_ms = (time.perf_counter() - t0) * 1e3
+        self.stage_times.add("solve", ctl.solve_time_ms)
+        self.stage_times.add("controller without the solve (set-up, checks)",
+                             max(0.0, compute_ms - ctl.solve_time_ms))
         if self.controller.route_override_note is not None:
             self.log_event("route", self.controller.route_override_note)
             self.controller.route_override_note = None
@@ -203,12 +211,18 @@ class MpcNode(LmpcNode):
         if ctl.mode in ("shifted", "brake"):
             self.counters["fallbacks"] += 1
         self._pub.publish(ctl)
-        self._publish_paths(obs)
+        with self.stage_times.stage("mirrors (paths, markers)"):
+            self._publish_paths(obs)
 
     def _publish_paths(self, obs: Observation) -> None:
+        """The reference and predicted paths, candidates and agent forecasts for RViz /
+        a recorder: built only for topics someone subscribes to (they cost more than the
+        solve: ~6 ms a step, docs/RESULTS.md "Where the time goes")."""
         stamp = self.get_clock().now().to_msg()
         for pub, pts in ((self._ref_pub, self.controller.reference_path),
                          (self._pred_pub, self.controller.predicted)):
+            if pub.get_subscription_count() == 0:
+                continue
             msg = Path()
             msg.header.frame_id = "map"
             msg.header.stamp = stamp
@@ -226,6 +240,9 @@ class MpcNode(LmpcNode):
         """The candidates and the agents' predictions as MarkerArrays (frame ``map``).
         Each array starts with a DELETEALL so lines of agents gone out of view vanish."""
         ctl = self.controller
+        if self._cand_pub.get_subscription_count() == 0 \
+                and self._agent_pred_pub.get_subscription_count() == 0:
+            return
         cands = candidate_lines(obs.map, obs.ego, lookahead_m=self.config.lookahead_m,
                                 reference_path=ctl.reference_path,
                                 reference_id=ctl.reference_id)

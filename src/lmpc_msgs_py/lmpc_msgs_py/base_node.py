@@ -11,11 +11,13 @@
 """
 from __future__ import annotations
 
+import json
 import os
 import signal
 import sys
 import time
 from collections import Counter
+from pathlib import Path
 from typing import Any, Callable, Generic, Optional, TypeVar
 
 import rclpy
@@ -32,6 +34,7 @@ from lmpc_msgs_py import topics
 from lmpc_msgs_py.codec import DecodeError, decode, encode
 from lmpc_msgs_py.freshness import SequenceGate, StaleMessage
 from lmpc_msgs_py.messages import LmpcMessage
+from lmpc_msgs_py.profiling import StageTimes
 from lmpc_msgs_py.supervision import follow_supervisor
 
 M = TypeVar("M", bound=LmpcMessage)
@@ -46,15 +49,23 @@ node publishes ``/clock`` any more, before it ends its process (parameter
 class JsonPublisher(Generic[M]):
     """Publishes schema messages as JSON text on a ``std_msgs/String`` topic."""
 
-    def __init__(self, node: Node, cls: type[M], name: str, qos: QoSProfile) -> None:
+    def __init__(self, node: Node, cls: type[M], name: str, qos: QoSProfile,
+                 times: Optional[StageTimes] = None) -> None:
         self.cls = cls
         self.topic = name
         self._pub = node.create_publisher(String, name, qos)
+        self._times = times or StageTimes()
+        self._encode_key, self._publish_key = f"encode {name}", f"publish {name}"
 
     def publish(self, msg: M) -> None:
         if not isinstance(msg, self.cls):
             raise TypeError(f"{self.topic} carries {self.cls.__name__}, not {type(msg).__name__}")
-        self._pub.publish(String(data=encode(msg)))
+        t0 = time.perf_counter()
+        data = String(data=encode(msg))
+        t1 = time.perf_counter()
+        self._pub.publish(data)
+        self._times.add(self._encode_key, (t1 - t0) * 1e3)
+        self._times.add(self._publish_key, (time.perf_counter() - t1) * 1e3)
 
     def subscription_count(self) -> int:
         return self._pub.get_subscription_count()
@@ -67,11 +78,36 @@ class LmpcNode(Node):
         super().__init__(name, **kwargs)  # type: ignore[arg-type]
         self.ego_id = ego_id
         self.counters: Counter[str] = Counter()
+        self.stage_times = StageTimes()
+        """Per-stage wall times of this node (``lmpc_msgs_py.profiling``)."""
         self._last_log: dict[str, float] = {}
         self._inputs: dict[str, Any] = {}  # topic -> subscription of a single-producer topic
         self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self._bridge_gone_exit_s = 0.0
         self._bridge_gone_since: Optional[float] = None
+        self._profile_file = ""
+
+    # -- where the time went ---------------------------------------------------------------
+    def declare_profile_output(self) -> None:
+        """Declare ``profile_file``: where this node writes its stage times when it ends
+        (JSON, ``lmpc_msgs_py.profiling``; '' = nowhere). ``run_graph.py`` sets it."""
+        self._profile_file = str(self.declare_parameter(
+            "profile_file", "", ParameterDescriptor(
+                description="JSON file for this node's per-stage wall times, written when "
+                            "the node ends ('' = none)")).value)
+
+    def write_profile(self) -> None:
+        if not self._profile_file:
+            return
+        try:
+            Path(self._profile_file).write_text(json.dumps(
+                {"node": self.get_name(), "stages_ms": self.stage_times.summary()}, indent=1))
+        except OSError as exc:  # a lost profile must not turn a clean exit into a crash
+            self.get_logger().warning(f"could not write {self._profile_file}: {exc}")
+
+    def destroy_node(self) -> None:
+        self.write_profile()
+        super().destroy_node()
 
     # -- the bridge gone for good ----------------------------------------------------------
     def declare_bridge_gone_exit(self) -> None:
@@ -122,7 +158,7 @@ class LmpcNode(Node):
     def json_publisher(
         self, cls: type[M], name: str, qos: QoSProfile = lmpc_qos.PRODUCED
     ) -> JsonPublisher[M]:
-        return JsonPublisher(self, cls, self.topic(name), qos)
+        return JsonPublisher(self, cls, self.topic(name), qos, self.stage_times)
 
     def json_subscription(
         self,
@@ -136,8 +172,10 @@ class LmpcNode(Node):
         """Subscribe to ``name``; ``callback`` only ever sees valid, in-order messages."""
         full = self.topic(name)
         gate = SequenceGate(full)
+        decode_key = f"decode {full}"
 
         def on_raw(raw: String) -> None:
+            t0 = time.perf_counter()
             try:
                 msg = decode(raw.data, cls, topic=full)
                 if check_seq:
@@ -145,6 +183,7 @@ class LmpcNode(Node):
             except (DecodeError, StaleMessage) as exc:
                 self.count_drop(full, exc.field, exc.reason)
                 return
+            self.stage_times.add(decode_key, (time.perf_counter() - t0) * 1e3)
             callback(msg)
 
         self._inputs[full] = self.create_subscription(String, full, on_raw, qos)
