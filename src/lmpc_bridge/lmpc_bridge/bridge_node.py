@@ -31,7 +31,6 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rosgraph_msgs.msg import Clock
 
 from lmpc_bridge.scenarios import SceneError
-from lmpc_bridge.scenarios.external import build_external_scene
 from lmpc_bridge.sim import SimError, SumoSim
 from lmpc_msgs_py import qos as lmpc_qos
 from lmpc_msgs_py import topics
@@ -125,6 +124,9 @@ class BridgeNode(LmpcNode):
 
         self.sim = SumoSim(work_dir=run_dir / "scene")
         if self.cfg.scene_file:
+            # imported here: it pulls in sumolib / traci, ~0.1 s of every other start-up
+            from lmpc_bridge.scenarios.external import build_external_scene
+
             self.get_logger().info(
                 f"building scene from {self.cfg.scene_file} ({self.cfg.clock_mode} clock)")
             scene = build_external_scene(self.cfg.scene_file, work_dir=run_dir / "scene")

@@ -50,6 +50,7 @@ from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
 from lmpc_mpc.config import MpcConfig, ResolvedWeights
 from lmpc_mpc.model import (  # noqa: F401 (NREF, midpoint_step: re-exported)
     BIG, N_W, NOBS, NREF, NU, NX, bicycle_function, box_bounds, midpoint_step, stage_symbols)
+from lmpc_mpc import solver_cache
 from lmpc_mpc.rti import RtiQp
 _RELEVANCE_MARGIN_M = 6.0
 """An obstacle farther than this beyond ``d_hat`` from every guess of the ego at a stage
@@ -357,10 +358,25 @@ class MpcSolver:
         return self._rti[n_slots]
 
     def compiled(self, n_slots: int) -> _Compiled:
-        """The problem of ``n_slots`` obstacle slots (built on first use, ~0.1-1 s)."""
+        """The problem of ``n_slots`` obstacle slots (built on first use, ~0.1-1 s, or
+        loaded from the on-disk cache, ~0.05 s: :mod:`lmpc_mpc.solver_cache`)."""
         if n_slots not in self._compiled:
-            self._compiled[n_slots] = self._build(n_slots)
+            self._compiled[n_slots] = self._load_or_build(n_slots)
         return self._compiled[n_slots]
+
+    def _load_or_build(self, n_slots: int) -> _Compiled:
+        key = solver_cache.entry_key(
+            self.config.model_dump_json(), repr(self.vehicle), str(n_slots), self.solver_name,
+            str(self.enforce_time_budget))
+        hit = solver_cache.load(key)
+        if hit is not None:
+            fn, a = hit
+            return _Compiled(fn, n_slots, a["lbx"], a["ubx"], a["lbg"], a["ubg"], int(a["n_p"]))
+        built = self._build(n_slots)
+        solver_cache.store(key, built.solver, {
+            "lbx": built.lbx, "ubx": built.ubx, "lbg": built.lbg, "ubg": built.ubg,
+            "n_p": np.array(built.n_p)})
+        return built
 
     def reset(self) -> None:
         """Forget the warm start (e.g. after a teleport or a new episode)."""

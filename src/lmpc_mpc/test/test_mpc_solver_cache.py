@@ -1,0 +1,84 @@
+"""The on-disk solver cache (``lmpc_mpc.solver_cache``): a loaded problem drives exactly
+like a built one, a hit skips the build, other inputs get other entries, a broken entry
+is rebuilt, ``off`` disables it."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lmpc_mpc import solver_cache
+from lmpc_mpc import synthetic as S
+from lmpc_mpc.config import load_mpc_config
+from lmpc_mpc.controller import MpcController
+from lmpc_mpc.solver import MpcSolver, simulate_bicycle
+
+CFG = load_mpc_config()
+
+
+@pytest.fixture
+def cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    folder = tmp_path / "solvers"
+    monkeypatch.setenv(solver_cache.CACHE_ENV, str(folder))
+    return folder
+
+
+def _run(steps: int = 30) -> np.ndarray:
+    """Closed loop behind a slower car (test_mpc_oracle's golden scene): controls, states."""
+    ctrl = MpcController(CFG, solver=MpcSolver(CFG))
+    m = S.straight_road()
+    x = np.array([10.0, -4.8, 0.0, 10.0])
+    rows = []
+    for k in range(steps):
+        t = k * CFG.dt_s
+        lead = S.agent("lead", x_m=40.0 + 6.0 * t, y_m=-4.8, yaw_rad=0.0, v_mps=6.0,
+                       lane_id="E0_0")
+        ego = S.ego_state(x_m=float(x[0]), y_m=float(x[1]), yaw_rad=float(x[2]),
+                          v_mps=float(x[3]), stamp_s=t, seq=k, lane_id="E0_0")
+        ctl = ctrl.compute(S.observation(m, ego, [lead]))
+        x = simulate_bicycle(x, np.array([[ctl.accel_mps2, ctl.steer_rad]]), dt_s=CFG.dt_s)[1]
+        rows.append([ctl.accel_mps2, ctl.steer_rad, *x])
+    assert rows[-1][5] < 9.5  # it slowed behind the lead: the solver did real work
+    return np.array(rows)
+
+
+def test_a_loaded_solver_drives_exactly_like_a_built_one(
+        cache: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    built = _run()
+    entries = sorted(p.name for p in cache.iterdir())
+    assert entries and all(p.endswith((".casadi", ".npz")) for p in entries)
+    assert not [p for p in entries if ".tmp" in p]
+
+    def no_build(self: MpcSolver, n_slots: int) -> None:
+        raise AssertionError(f"built size {n_slots} although it is cached")
+
+    monkeypatch.setattr(MpcSolver, "_build", no_build)
+    loaded = _run()
+    assert np.array_equal(built, loaded)  # to the last digit
+
+
+def test_other_inputs_get_other_entries(cache: Path) -> None:
+    MpcSolver(CFG).compiled(5)
+    n = len(list(cache.glob("*.casadi")))
+    MpcSolver(CFG.model_copy(update={"horizon": CFG.horizon - 5})).compiled(5)
+    MpcSolver(CFG, solver="ipopt").compiled(5)
+    MpcSolver(CFG).compiled(10)
+    assert len(list(cache.glob("*.casadi"))) == n + 3
+
+
+def test_a_broken_entry_is_rebuilt(cache: Path, caplog: pytest.LogCaptureFixture) -> None:
+    MpcSolver(CFG).compiled(5)
+    (entry,) = cache.glob("*.casadi")
+    entry.write_text("not a casadi function")
+    ctrl = MpcController(CFG, solver=MpcSolver(CFG))
+    assert ctrl.solver.compiled(5).solver.name() == "mpc"
+    assert "unreadable" in caplog.text and entry.name in caplog.text
+    assert solver_cache.load(entry.stem) is not None  # written again
+
+
+def test_off_disables_the_cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(solver_cache.CACHE_ENV, "off")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    MpcSolver(CFG).compiled(5)
+    assert solver_cache.cache_dir() is None and not any(tmp_path.iterdir())
