@@ -119,20 +119,22 @@ class Graph:
         self._print_lock = threading.Lock()
 
     def start_node(self, name: str, module: str, params: dict[str, object],
-                   cpus: Optional[set[int]] = None) -> Child:
-        """Start ``python -m module`` with ROS parameters."""
+                   cpus: Optional[set[int]] = None,
+                   env: Optional[dict[str, str]] = None) -> Child:
+        """Start ``python -m module`` with ROS parameters (and ``env`` added)."""
         args = [sys.executable, "-m", module, "--ros-args"]
         for key, value in params.items():
             text = str(value).lower() if isinstance(value, bool) else str(value)
             args += ["-p", f"{key}:={text}"]
-        return self.start(name, args, cpus)
+        return self.start(name, args, cpus, env)
 
-    def start(self, name: str, args: list[str], cpus: Optional[set[int]] = None) -> Child:
+    def start(self, name: str, args: list[str], cpus: Optional[set[int]] = None,
+              extra_env: Optional[dict[str, str]] = None) -> Child:
         log_file = open(self.run_dir / f"{name}.log", "w", encoding="utf-8")
         # LMPC_SUPERVISOR_PID: the child ends itself when this process dies (prctl
         # PR_SET_PDEATHSIG + a parent-pid watch). Started from the main thread: the
         # death signal fires when the forking *thread* ends.
-        env = dict(self.env, LMPC_SUPERVISOR_PID=str(os.getpid()))
+        env = dict(self.env, LMPC_SUPERVISOR_PID=str(os.getpid()), **(extra_env or {}))
         proc = subprocess.Popen(
             args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
             bufsize=1, start_new_session=True,
@@ -300,6 +302,11 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
                          "/lmpc/ego_state besides the graph's own (your monitor; it should "
                          "subscribe to the ego state once it hears the topics it watches)")
     ap.add_argument("--quiet", action="store_true", help="do not echo node logs")
+    ap.add_argument("--rt-priority", type=int, default=0, metavar="N",
+                    help="run the 10 Hz loop (bridge, MPC and, except with --planner local, "
+                         "the planner) with SCHED_FIFO priority N (1-99; needs CAP_SYS_NICE, "
+                         "else they say so and run normally; default 0: off). Keeps the "
+                         "control cycle on time next to CPU-heavy jobs (docs/RESULTS.md)")
     ap.add_argument("--profile", action="store_true",
                     help="print where the time of a step goes (per node and stage; always in "
                          "the summary JSON as 'profile_ms')")
@@ -323,6 +330,8 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
             ap.error(f"--{name.replace('_', '-')} must be within 0..600 s, got {value}")
     if args.planner == "mock" and args.mock_script is None:
         ap.error("--planner mock needs --mock-script FILE")
+    if not 0 <= args.rt_priority <= 99:
+        ap.error(f"--rt-priority must be 0 (off) or 1-99, got {args.rt_priority}")
     if args.extra_subscribers < 0:
         ap.error(f"--extra-subscribers must be >= 0, got {args.extra_subscribers}")
     if args.instruction is not None and args.planner == "none":
@@ -417,7 +426,10 @@ def run(args: argparse.Namespace, stops: Optional[StopSignals] = None) -> dict[s
                 cpu_set = {cpus[-1]}
             elif split and name == "mpc":
                 cpu_set = set(cpus[:-1])
-            child = graph.start_node(name, NODE_MODULES[name], params[name], cpus=cpu_set)
+            env = {"LMPC_RT_PRIORITY": str(args.rt_priority)} \
+                if args.rt_priority and name in rt_nodes(args) else None  # scheduling.py
+            child = graph.start_node(name, NODE_MODULES[name], params[name], cpus=cpu_set,
+                                     env=env)
             if args.instruction and name in ("planner", "mock_llm"):
                 try:
                     deliver_instruction(graph, child, args.instruction)
@@ -450,6 +462,15 @@ def run(args: argparse.Namespace, stops: Optional[StopSignals] = None) -> dict[s
     wall_s = time.monotonic() - t0
     return summarize(run_dir, graph, wall_s, crashed=crashed, interrupted=interrupted, args=args,
                      signals=stops.received)
+
+
+def rt_nodes(args: argparse.Namespace) -> tuple[str, ...]:
+    """The nodes ``--rt-priority`` applies to: the bridge and the MPC, and the planner
+    (the bridge waits for its status every step) unless it runs the embedded LLM, which
+    would keep its core busy for seconds at real-time priority."""
+    if args.planner == "local":
+        return ("bridge", "mpc")
+    return ("bridge", "mpc", "planner", "mock_llm")
 
 
 def _signal_names(stops: StopSignals) -> str:

@@ -35,6 +35,7 @@ from lmpc_msgs_py.codec import DecodeError, decode, encode
 from lmpc_msgs_py.freshness import SequenceGate, StaleMessage
 from lmpc_msgs_py.messages import LmpcMessage
 from lmpc_msgs_py.profiling import StageTimes
+from lmpc_msgs_py.scheduling import apply_priority_from_env
 from lmpc_msgs_py.supervision import follow_supervisor
 
 M = TypeVar("M", bound=LmpcMessage)
@@ -258,11 +259,14 @@ def run_node(factory: Callable[[], Node], args: Optional[list[str]] = None) -> i
     """
     follow_supervisor()  # before the slow parts: a dead launcher must not leave us behind
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    priority = apply_priority_from_env()  # before rclpy.init: DDS threads inherit it
     rclpy.init(args=args if args is not None else sys.argv)
     node: Optional[Node] = None
     code = 0
     try:
         node = factory()
+        if priority is not None:
+            node.get_logger().info(f"scheduling: {priority}")
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -1,0 +1,40 @@
+"""Keeping the 10 Hz loop on time on a busy machine: real-time priority for a node.
+
+``run_graph.py --rt-priority N`` starts the bridge and the MPC with ``LMPC_RT_PRIORITY=N``;
+:func:`apply_priority_from_env` (called by ``run_node`` before ``rclpy.init``, so every
+DDS thread the node starts inherits it) switches the process to ``SCHED_FIFO`` at
+priority N. A FIFO thread runs as soon as it is ready and keeps the core until it waits
+again; the nodes wait on DDS between steps, so they take a core only for the ~5-10 ms of
+a step and a benchmark worker next to them gets the rest. Needs ``CAP_SYS_NICE`` (root,
+or an ``rtprio`` limit in /etc/security/limits.conf): without it the node says so once
+and runs at normal priority. Measured effect: docs/RESULTS.md, "Where the time goes".
+"""
+from __future__ import annotations
+
+import os
+import sys
+from typing import Optional
+
+PRIORITY_ENV = "LMPC_RT_PRIORITY"
+
+
+def apply_priority_from_env() -> Optional[str]:
+    """Apply ``$LMPC_RT_PRIORITY`` (1-99) to this process; what was done, or None."""
+    value = os.environ.get(PRIORITY_ENV, "")
+    if not value:
+        return None
+    try:
+        priority = int(value)
+        if not 1 <= priority <= 99:
+            raise ValueError
+    except ValueError:
+        print(f"{PRIORITY_ENV}={value!r} is not a priority 1-99: normal scheduling",
+              file=sys.stderr, flush=True)
+        return None
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (PermissionError, OSError, AttributeError) as exc:
+        print(f"{PRIORITY_ENV}={priority}: SCHED_FIFO refused ({exc}; needs CAP_SYS_NICE or "
+              "an rtprio limit): normal scheduling", file=sys.stderr, flush=True)
+        return None
+    return f"SCHED_FIFO priority {priority}"
