@@ -96,7 +96,7 @@ def commit(inp: RuleInputs, plan: Plan, note: str) -> str:
 
 
 def approach_turn(inp: RuleInputs, plan: Plan, man: Maneuver, v_mps: float) -> None:
-    """Slow to ``approach_turn_speed_mps`` by the stop line (a driver about to turn does;
+    """Rule 4: slow to ``approach_turn_speed_mps`` by the stop line (a driver about to turn does;
     it also leaves room to react to traffic not yet in sensing range)."""
     cfg = inp.cfg
     accel = inp.accel

@@ -1,12 +1,12 @@
-"""The rules of the ego's own path: brake for an agent in it (rule 4), else go (rule 5).
+"""The rules of the ego's own path: brake for an agent in it (rule 5), else go (rule 6).
 
-Rule 4: an agent in the ego's path ahead (within the corridor of the chosen candidate)
+Rule 5: an agent in the ego's path ahead (within the corridor of the chosen candidate)
 that it closes in on (TTC under ``path_ttc_s``, ``commit_ttc_s`` in a committed turn), or
 a standing / hard-braking vehicle in its lane (not a queue) -> a braking bias, safety
 "high"; for a standing vehicle the ego stops about ``STANDOFF_M`` behind where it will
 stand (room to steer round it). Traffic that only passes near the path (an oncoming car
 in its own lane) is the turn rule's business.
-Rule 5: otherwise go: accelerating (below 80 % of the speed limit) or neutral bias,
+Rule 6: otherwise go: accelerating (below 80 % of the speed limit) or neutral bias,
 normal weights; close behind a leader in the path the MPC follows it on its own (hold,
 creep, or stop short of a standing one)."""
 from __future__ import annotations
@@ -78,7 +78,7 @@ def path_threats(inp: RuleInputs, plan: Plan, *, committed: bool
 
 
 def path_rule(inp: RuleInputs, plan: Plan, *, committed: bool) -> None:
-    """Rule 4: brake for the most urgent threat in the path (none: nothing changes)."""
+    """Rule 5: brake for the most urgent threat in the path (none: nothing changes)."""
     cfg = inp.cfg
     ego = inp.scene.obs.ego
     threats, standoff = path_threats(inp, plan, committed=committed)
@@ -114,7 +114,7 @@ def path_rule(inp: RuleInputs, plan: Plan, *, committed: bool) -> None:
 
 
 def go_rule(inp: RuleInputs, plan: Plan) -> None:
-    """Rule 5 (when no rule chose the speed): follow a close leader in the path, else
+    """Rule 6 (when no rule chose the speed): follow a close leader in the path, else
     speed up below 80 % of the limit or keep the speed."""
     scene = inp.scene
     ego = scene.obs.ego
