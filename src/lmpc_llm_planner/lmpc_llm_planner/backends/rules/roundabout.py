@@ -11,7 +11,7 @@ junction; ring traffic's intent (exit before the merge point or not) is unknown,
 every ring agent upstream counts."""
 from __future__ import annotations
 
-from typing import Optional
+from typing import Mapping, Optional
 
 from lmpc_msgs_py.messages import Lane
 
@@ -135,7 +135,7 @@ def _give_way(inp: RuleInputs, plan: Plan, man: Maneuver, unsafe: list[Conflict]
     return "yield"
 
 
-def ring_distance_m(lanes: dict[str, Lane], start: Lane, pos_m: float, goal_id: str,
+def ring_distance_m(lanes: Mapping[str, Lane], start: Lane, pos_m: float, goal_id: str,
                     max_m: float) -> Optional[float]:
     """Distance along roundabout lanes from ``pos_m`` on ``start`` to the start of lane
     ``goal_id`` (following lane links and their junction lanes), or None when it is not
