@@ -1,0 +1,66 @@
+"""The headway rule: behind a moving leader in the ego's lane keep a gap from which the ego
+can still brake (or steer round it) if the leader brakes as hard as a car can
+(``LEADER_BRAKE_MPS2``): the ego's stopping distance after a reaction time, minus the
+leader's, plus ``STANDOFF_M`` to steer round it; at least ``HEADWAY_S`` of time gap. The
+MPC follows at its own (1 s) headway; too close, the rules brake gently (the mildest
+braking interval) until the gap has opened, and hold the speed while it is only a little
+short."""
+from __future__ import annotations
+
+from .intervals import brake_index, neutral
+from .plan import Plan, RuleInputs, changing_lanes
+from .scene_helpers import STANDOFF_M, lane_leader
+
+HEADWAY_S = 2.0
+"""Time gap the ego keeps at least behind a moving leader in its lane (rules headway)."""
+HEADWAY_REACTION_S = 1.0
+"""The ego's reaction time in that gap: an emergency decision comes only once the TTC to
+the braking leader is under `emergency_ttc_s` (2 s), about a second after it starts braking
+(eoa seed 2: the ego ended 3 m behind the hazard with 0.5 s here)."""
+EGO_BRAKE_MPS2 = 5.0
+"""The ego's braking in that gap (midpoint of the strongest braking interval)."""
+LEADER_BRAKE_MPS2 = 8.0
+"""How hard a leader may brake (eoa hazards brake at 8 m/s^2; a car's emergency braking)."""
+HEADWAY_OPEN_FRACTION = 0.85
+"""Below this fraction of the wanted gap the ego brakes gently to open it (above: holds)."""
+HEADWAY_MIN_SPEED_MPS = 4.0
+"""Below this speed the MPC's own following distance is enough (queues, creeping)."""
+
+
+def wanted_gap_m(v_mps: float, leader_v_mps: float) -> float:
+    """The gap the ego keeps at ``v_mps`` behind a leader driving ``leader_v_mps``."""
+    v, vl = v_mps, leader_v_mps
+    return max(HEADWAY_S * v, v * HEADWAY_REACTION_S + v * v / (2.0 * EGO_BRAKE_MPS2)
+               - vl * vl / (2.0 * LEADER_BRAKE_MPS2) + STANDOFF_M)
+
+
+def headway_rule(inp: RuleInputs, plan: Plan) -> None:
+    """Drop back (mildest braking) or hold the speed behind a leader that is too close."""
+    scene = inp.scene
+    v = scene.obs.ego.v_mps
+    if v < HEADWAY_MIN_SPEED_MPS:
+        return
+    if changing_lanes(scene, plan):
+        return  # the leader of the lane being left does not matter
+    leader = lane_leader(scene)
+    if leader is None or leader.agent.v_mps < inp.cfg.moving_speed_mps:
+        return  # standing: the stand-off rules (path, go) handle it
+    vl = leader.agent.v_mps
+    want = wanted_gap_m(v, vl)
+    gap = leader.kin.gap_m
+    if gap >= want:
+        return
+    plan.attend(leader, "leader in my lane")
+    plan.speed_set = True
+    plan.weights["action"] = "high"
+    if gap < HEADWAY_OPEN_FRACTION * want and v > vl - 1.0:
+        plan.accel_index = brake_index(inp.accel, 0.5, False)
+        plan.notes.append(
+            f"{leader.id} drives {gap:.0f} m ahead in my lane at {vl:.1f} m/s; I drop "
+            f"back to about {want:.0f} m so I can still brake or steer round it if it "
+            "brakes hard.")
+    else:
+        plan.accel_index = neutral(inp.accel)
+        plan.notes.append(
+            f"I follow {leader.id} ({gap:.0f} m ahead) and keep about {want:.0f} m, "
+            "enough to brake or steer round it if it brakes hard.")

@@ -1,0 +1,194 @@
+"""The rules of the ego's own path: brake for an agent in it (rule 5), else go (rule 6).
+
+Rule 5: an agent in the ego's path ahead (within the corridor of the chosen candidate)
+that it closes in on (TTC under ``path_ttc_s``, ``commit_ttc_s`` in a committed turn), or
+a standing / hard-braking vehicle in its lane (not a queue) -> a braking bias, safety
+"high"; for a standing vehicle the ego stops about ``STANDOFF_M`` behind where it will
+stand (room to steer round it). Traffic that only passes near the path (an oncoming car
+in its own lane) is the turn rule's business.
+Rule 6: otherwise go: accelerating (below 80 % of the speed limit) or neutral bias,
+normal weights; close behind a leader in the path the MPC follows it on its own (hold,
+creep, or stop short of a standing one)."""
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE
+
+from lmpc_llm_planner.scene import AgentView
+
+from .emergency import brake_hard, brakes_hard
+from .intervals import brake_index, mildest_accel, neutral, stop_index
+from .plan import Plan, RuleInputs, changing_lanes
+from .scene_helpers import (
+    ALONG_RAD, HARD_BRAKE_MPS2, STANDOFF_M, distance_to_path, other_lane, queued_at_junction,
+    route_path,
+)
+
+
+def path_threats(inp: RuleInputs, plan: Plan, *, committed: bool
+                 ) -> tuple[list[AgentView], dict[str, float]]:
+    """The agents in the chosen path the ego must brake for, and for those it should stop
+    behind (standing or braking hard) the distance to that stop (id -> m)."""
+    cfg = inp.cfg
+    scene = inp.scene
+    ego = scene.obs.ego
+    path = route_path(scene, plan.ego_index)
+    changing = changing_lanes(scene, plan)
+    threats = []
+    standoff: dict[str, float] = {}
+    for v in scene.agents:
+        k = v.kin
+        if k.longitudinal_m <= 0.0:
+            continue
+        # a standing vehicle (a breakdown, not a queue) in my own lane, or one braking
+        # hard towards a standstill: stop far enough behind where it will stand to
+        # steer round it later (the constant-velocity TTC sees a braking car late)
+        stopping = v.agent.v_mps < cfg.moving_speed_mps or \
+            v.agent.a_mps2 < -HARD_BRAKE_MPS2
+        stand = not changing and stopping and abs(k.heading_rel_rad) < ALONG_RAD and \
+            not queued_at_junction(scene, v) and not other_lane(scene, v)
+        if k.ttc_s is None and not stand:
+            continue
+        if path is not None:
+            corridor = 0.5 * (ego.width_m + v.agent.width_m) + cfg.path_corridor_m
+            if distance_to_path(path, v.agent.x_m, v.agent.y_m) > corridor:
+                continue
+        limit = cfg.path_ttc_s if not committed else cfg.commit_ttc_s
+        stop_gap = k.gap_m - STANDOFF_M
+        if v.agent.v_mps >= cfg.moving_speed_mps:
+            stop_gap += v.agent.v_mps ** 2 / (2.0 * max(-v.agent.a_mps2, HARD_BRAKE_MPS2))
+        short = stand and ego.v_mps >= cfg.moving_speed_mps and \
+            stop_gap < ego.v_mps ** 2 / (2.0 * 2.0) + 1.5 * ego.v_mps
+        if k.ttc_s is not None and k.ttc_s < limit:
+            threats.append(v)
+            if short:
+                # closing in on a car braking hard: the constant-velocity TTC
+                # underrates the braking needed (eoa seed 121 ended 4 m behind the
+                # hazard, too close to steer round): brake for where it will stand
+                # when that needs more
+                need_ttc = k.closing_speed_mps ** 2 / (2.0 * max(k.gap_m - 2.0, 0.5))
+                if ego.v_mps ** 2 / (2.0 * max(stop_gap, 0.5)) > need_ttc:
+                    standoff[v.id] = stop_gap
+        elif short:
+            threats.append(v)
+            standoff[v.id] = stop_gap
+    return threats, standoff
+
+
+def path_rule(inp: RuleInputs, plan: Plan, *, committed: bool) -> None:
+    """Rule 5: brake for the most urgent threat in the path (none: nothing changes)."""
+    cfg = inp.cfg
+    ego = inp.scene.obs.ego
+    threats, standoff = path_threats(inp, plan, committed=committed)
+    if not threats:
+        return
+    worst = min(threats, key=lambda v: (v.kin.ttc_s if v.kin.ttc_s is not None
+                                        else math.inf, v.id))
+    ttc_txt = f"{worst.kin.ttc_s:.1f} s to collision" if worst.kin.ttc_s is not None \
+        else "standing"
+    plan.attend(worst, f"closing in, {ttc_txt}")
+    if worst.id in standoff:
+        need = ego.v_mps ** 2 / (2.0 * max(standoff[worst.id], 0.5))
+    else:
+        need = worst.kin.closing_speed_mps**2 / (2.0 * max(worst.kin.gap_m - 2.0, 0.5))
+    if brakes_hard(inp, worst):
+        brake_hard(inp, plan)
+    else:
+        plan.accel_index = brake_index(inp.accel, need * cfg.brake_margin_factor, False)
+    plan.speed_set = True
+    plan.weights["safety"] = "high"
+    if worst.id in standoff:
+        what = "stands" if worst.agent.v_mps < cfg.moving_speed_mps else "brakes hard"
+        plan.notes.append(
+            f"{worst.id} {what} {worst.kin.gap_m:.0f} m ahead in my lane, so I brake to "
+            f"stop about {STANDOFF_M:.0f} m behind where it stands (room to steer round it)."
+        )
+    else:
+        plan.notes.append(
+            f"{worst.id} is {worst.kin.gap_m:.0f} m {worst.kin.relation} in my path and I "
+            f"close in at {worst.kin.closing_speed_mps:.1f} m/s, so I brake to keep a safe "
+            "distance."
+        )
+
+
+def go_rule(inp: RuleInputs, plan: Plan) -> None:
+    """Rule 6 (when no rule chose the speed): follow a close leader in the path, else
+    speed up below 80 % of the limit or keep the speed."""
+    scene = inp.scene
+    ego = scene.obs.ego
+    lane = scene.lanes.get(ego.lane_id or "")
+    limit = lane.speed_limit_mps if lane is not None else DEFAULT_VEHICLE.max_speed_mps
+    close = None if changing_lanes(scene, plan) else close_leader_in_path(inp, plan)
+    if close is not None:
+        _follow(inp, plan, close)
+        return
+    if ego.v_mps < 0.8 * limit:
+        plan.accel_index = mildest_accel(inp.accel)
+        if not plan.notes:
+            plan.notes.append(
+                f"The way is clear; I speed up towards the {limit:.1f} m/s limit."
+            )
+    elif not plan.notes:
+        plan.notes.append("The way is clear; I keep my speed.")
+
+
+def _follow(inp: RuleInputs, plan: Plan, close: AgentView) -> None:
+    """Close behind ``close`` in the path: stay, creep or stop short of it when it stands,
+    else keep the speed (the MPC follows it)."""
+    cfg = inp.cfg
+    accel = inp.accel
+    ego = inp.scene.obs.ego
+    standing = close.agent.v_mps < cfg.moving_speed_mps
+    d_m = close.kin.gap_m - STANDOFF_M
+    moving = ego.v_mps >= cfg.moving_speed_mps
+    if standing and (d_m < 3.0 or (not moving and d_m < 8.0)):
+        # close behind a standing vehicle: stay (an accelerating bias would push
+        # the MPC into it, and from nearer the ego could not steer round it)
+        plan.accel_index = brake_index(accel, 0.0, True)
+        plan.weights["action"] = "high"
+        plan.notes.append(f"{close.id} stands {close.kin.gap_m:.0f} m ahead in my "
+                          "path, so I stay where I am.")
+    elif standing and not moving:
+        plan.accel_index = mildest_accel(accel)  # creep nearer, slowly
+        plan.notes.append(f"I creep up behind {close.id}, standing ahead.")
+    elif standing:
+        # a neutral bias lets the MPC speed up to just behind it: brake to stop
+        # about STANDOFF_M short of it instead
+        plan.accel_index = stop_index(accel, ego.v_mps, d_m, None, cfg.moving_speed_mps)
+        plan.weights["action"] = "high"
+        plan.notes.append(f"{close.id} stands {close.kin.gap_m:.0f} m ahead in my "
+                          f"path; I stop about {STANDOFF_M:.0f} m short of it.")
+    else:
+        plan.accel_index = neutral(accel)
+        if not plan.notes:
+            plan.notes.append(f"I follow {close.id} ahead in my path.")
+
+
+def close_leader_in_path(inp: RuleInputs, plan: Plan) -> Optional[AgentView]:
+    """The nearest agent ahead within the corridor of the chosen path, closer than
+    what the ego needs to follow it comfortably (two seconds, at least 15 m) and not
+    faster than the ego: the MPC follows it on its own; speeding up would fight that."""
+    scene = inp.scene
+    ego = scene.obs.ego
+    path = route_path(scene, plan.ego_index)
+    best: Optional[AgentView] = None
+    for v in scene.agents:
+        k = v.kin
+        if k.longitudinal_m <= 0.0 or k.motion == "oncoming":
+            continue
+        standing = v.agent.v_mps < inp.cfg.moving_speed_mps and \
+            not queued_at_junction(scene, v)
+        reach_m = max(15.0, 2.0 * ego.v_mps, STANDOFF_M + 15.0 if standing else 0.0)
+        if k.gap_m > reach_m or v.agent.v_mps > ego.v_mps + 1.0:
+            continue
+        if other_lane(scene, v):
+            continue  # e.g. a standing car the ego is steering round in the next lane
+        if path is not None:
+            corridor = 0.5 * (ego.width_m + v.agent.width_m) + inp.cfg.path_corridor_m
+            if distance_to_path(path, v.agent.x_m, v.agent.y_m) > corridor:
+                continue
+        if best is None or k.gap_m < best.kin.gap_m:
+            best = v
+    return best

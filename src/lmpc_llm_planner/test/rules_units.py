@@ -1,0 +1,29 @@
+"""Helpers of the per-rule unit tests (test_rules_*.py): the rule inputs of a hand-made
+observation as the rules backend builds them, and a fresh plan. Plain functions
+(conftest.py puts this folder on ``sys.path``)."""
+from __future__ import annotations
+
+from lmpc_llm_planner.backends.rules.backend import rule_inputs
+from lmpc_llm_planner.backends.rules.intervals import mid, neutral
+from lmpc_llm_planner.backends.rules.plan import Plan, RuleInputs
+from lmpc_llm_planner.planner import build_request
+from lmpc_llm_planner.scene import build_scene
+
+
+def inputs(obs, planner_config, mpc_config, *, instruction=None, mode="normal",
+           previous=None) -> RuleInputs:
+    """The :class:`RuleInputs` of ``obs`` (scene analysed as the planner does)."""
+    scene = build_scene(obs, lookahead_m=60.0, max_agents=20)
+    req = build_request(scene, config=planner_config, mpc_config=mpc_config,
+                        instruction=instruction, mode=mode, previous=previous)
+    return rule_inputs(planner_config.rules, req)
+
+
+def fresh_plan(inp: RuleInputs) -> Plan:
+    """The plan every request starts from (neutral intervals, normal weights)."""
+    return Plan(accel_index=neutral(inp.accel), steer_index=neutral(inp.steer))
+
+
+def accel_of(inp: RuleInputs, plan: Plan) -> float:
+    """The midpoint of the plan's acceleration interval (the bias), m/s^2."""
+    return mid(inp.accel[plan.accel_index])
