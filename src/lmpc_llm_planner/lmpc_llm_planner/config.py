@@ -34,7 +34,7 @@ class _Frozen(BaseModel):
 
 
 class RulesConfig(_Frozen):
-    """Knobs of the deterministic ``rules`` reasoner (backends/rules.py)."""
+    """Knobs of the deterministic ``rules`` reasoner (the package backends/rules/)."""
 
     safe_gap_s: float = Field(default=1.5, gt=0.0, le=30.0)
     """A left turn may go when every oncoming agent reaches the crossing at least this

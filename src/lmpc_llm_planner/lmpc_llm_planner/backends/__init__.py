@@ -2,7 +2,7 @@
 
 ``make_backend(config)`` builds the one named by ``config.backend``:
 
-- ``rules``: the deterministic traffic-rule reasoner (``rules.py``);
+- ``rules``: the deterministic traffic-rule reasoner (package ``rules/``);
 - ``openai``: any OpenAI-compatible chat-completions endpoint (``openai.py``, stdlib HTTP);
 - ``local``: an embedded llama.cpp model, SmolLM2-135M by default (``local.py``; needs the
   optional extra ``local``);
