@@ -68,6 +68,8 @@ class MpcNode(LmpcNode):
         self._signals: dict[float, SignalStates] = {}
         self._pending: list[tuple[EgoState, float]] = []  # (ego, wall time received)
         self._decision_ids: set[str] = set()
+        self._refusal: Optional[str] = None
+        """Why the last refused decision was refused (diagnostics message), if any."""
         self._last_clock_s: Optional[float] = None
         self._last_clock_wall = time.monotonic()
         self._frozen = False
@@ -92,7 +94,8 @@ class MpcNode(LmpcNode):
         self.create_timer(TICK_S, self._tick, clock=steady)
         self.create_timer(1.0, self._diagnostics, clock=steady)
         self.get_logger().info(
-            f"mpc_controller up: solver {self.config.solver}, horizon {self.config.horizon}; "
+            f"mpc_controller up: solver {self.config.solver}, horizon {self.config.horizon}, "
+            f"decision space {self.config.decision_space.describe()}; "
             f"waiting for {self.topic(topics.MAP)} and {self.topic(topics.EGO_STATE)} "
             "(no control is published before both arrive)")
 
@@ -122,8 +125,17 @@ class MpcNode(LmpcNode):
         self._tick()
 
     def _on_decision(self, msg: Decision) -> None:
-        self._decision_ids.add(msg.decision_id)
-        self.controller.on_decision(msg)
+        self._decision_ids.add(msg.decision_id)  # refused or not, the barrier saw it
+        refusal = self.controller.on_decision(msg)
+        if refusal is not None:
+            # another decision space: the graph is miswired, say so loudly (throttled);
+            # counted as a drop on the topic and as refused_decisions
+            topic = self.topic(topics.DECISION)
+            self.counters["dropped_messages"] += 1
+            self.counters[f"dropped:{topic}"] += 1
+            self._refusal = refusal
+            self.log_event("decision_space", f"REFUSED decision {msg.decision_id} on {topic}: "
+                           f"{refusal}", level="error")
         self._tick()
 
     @staticmethod
@@ -269,6 +281,8 @@ class MpcNode(LmpcNode):
             message = f"waiting for {self.topic(topics.EGO_STATE)}"
         else:
             message = f"mode {st.mode}"
+        if self._refusal is not None:
+            level, message = 2, f"decisions refused: {self._refusal}"
         self.publish_diagnostics(level, message,
                                  {"mode": st.mode, "steps": st.steps,
                                   "solver_failures": st.solver_failures,
@@ -280,6 +294,8 @@ class MpcNode(LmpcNode):
                                   "stale_steps": st.stale_steps,
                                   "stale_agent_steps": st.stale_agent_steps,
                                   "go_refused": st.go_refused,
+                                  "refused_decisions": st.refused_decisions,
+                                  "decision_space": self.config.decision_space.describe(),
                                   "over_budget": st.over_budget})
 
 

@@ -21,7 +21,7 @@ import statistics
 from typing import Any, Sequence
 
 from lmpc_mpc import synthetic as syn
-from lmpc_mpc.config import load_mpc_config
+from lmpc_msgs_py.vocabulary import load_decision_space
 
 from lmpc_llm_planner.backends.base import DecisionRequest
 from lmpc_llm_planner.backends.bench_local import NORTH, percentile, scenes
@@ -36,7 +36,7 @@ from lmpc_llm_planner.validation import parse_decision
 def requests(n: int, deadline_s: float) -> list[DecisionRequest]:
     """The ``bench_local`` scenes as decision requests (the packaged planner settings)."""
     pcfg = load_planner_config().model_copy(update={"deadline_s": deadline_s})
-    mcfg = load_mpc_config()
+    space = load_decision_space()
     out = []
     for sc in scenes(n):
         map_ = syn.four_way_junction(arm_m=100.0, ego_turn=sc["turn"])
@@ -46,7 +46,7 @@ def requests(n: int, deadline_s: float) -> list[DecisionRequest]:
         agents = [syn.agent(a.pop("aid"), **a) for a in [dict(x) for x in sc["agents"]]]
         scene = build_scene(syn.observation(map_, ego, agents), lookahead_m=pcfg.lookahead_m,
                             max_agents=pcfg.max_agents_in_prompt)
-        out.append(build_request(scene, config=pcfg, mpc_config=mcfg,
+        out.append(build_request(scene, config=pcfg, space=space,
                                  instruction=sc["instruction"]))
     return out
 
