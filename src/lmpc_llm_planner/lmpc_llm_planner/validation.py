@@ -10,7 +10,8 @@ offered), ``no_lane`` (an ego candidate that follows no lane).
 
 Translation turns the chosen candidates' indices into their control points; the
 interval indices and weight levels stay choices of the decision space (the Decision
-carries its hash), the MPC turns them into numbers (``lmpc_msgs_py.vocabulary``). The safety floor then keeps close / low-TTC agents attended.
+carries its hash), the MPC turns them into numbers (``lmpc_msgs_py.vocabulary``).
+The safety floor then keeps close / low-TTC agents attended.
 """
 from __future__ import annotations
 

@@ -19,11 +19,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Optional, Sequence
+from typing import Mapping, Optional, Sequence
 
 import numpy as np
 
-from lmpc_msgs_py.messages import Agent, Control, Decision, EgoState, PosePoint
+from lmpc_msgs_py.messages import Agent, Control, ControlMode, Decision, EgoState, PosePoint
 from lmpc_msgs_py.observation import Observation
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
 from lmpc_msgs_py.vocabulary import space_mismatch
@@ -356,7 +356,7 @@ class MpcController:
             self.solver.reconverge()  # new weights / bias / attention: a jump, not a drift
             self._solved_decision_id = dec_id
         result = self.solver.solve(problem)
-        mode = "decision" if decision is not None else "baseline"
+        mode: ControlMode = "decision" if decision is not None else "baseline"
         if result.success:
             u = result.u0
             if all(math.isfinite(v) for v in u):
@@ -671,7 +671,7 @@ class MpcController:
         return None if self._curve is None else self._curve[2]
 
     def _reattend_stale(self, obs: Observation, line: _Polyline, in_problem: Sequence[Agent],
-                        preds: dict[str, object], obstacles: list[Obstacle],
+                        preds: Mapping[str, object], obstacles: list[Obstacle],
                         speeds: list[float]) -> tuple[str, ...]:
         """The stale-decision check's attention part (``lmpc_mpc.stale``): every agent in
         sensing range whose own forecast enters the ego's path corridor within reach in
@@ -820,7 +820,7 @@ class MpcController:
         return self._emit(obs, (-self.vehicle.safe_brake_mps2, 0.0), "brake", status,
                           solve_time_s, decision_id, None, (), None)
 
-    def _emit(self, obs: Observation, u: tuple[float, float], mode: str, status: str,
+    def _emit(self, obs: Observation, u: tuple[float, float], mode: ControlMode, status: str,
               solve_time_s: float, decision_id: Optional[str], ref_id: Optional[int],
               attended: tuple[str, ...], predicted: Optional[np.ndarray]) -> Control:
         veh = self.vehicle
@@ -842,6 +842,6 @@ class MpcController:
         ctl = Control(stamp_s=obs.ego.stamp_s, seq=self._seq, accel_mps2=a, steer_rad=d,
                       mode=mode, solver_status=status[:200], solve_time_ms=solve_ms,
                       decision_id=decision_id, reference_id=ref_id, attended=attended,
-                      predicted=pts, stale=self.stale.labels())  # type: ignore[arg-type]
+                      predicted=pts, stale=self.stale.labels())
         self._seq += 1
         return ctl

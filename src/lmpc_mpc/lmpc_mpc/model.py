@@ -32,7 +32,7 @@ class CostParams(NamedTuple):
     (reference, the per-stage acceleration bias, obstacles) follow in the vector."""
 
     w_pos: Any
-    """W_x: squared position error to the reference (longitudinal; lateral x ``lateral_factor``)."""
+    """W_x: squared position error to the reference (lateral: x ``lateral_factor``)."""
     w_v: Any
     """W_v: squared speed error."""
     w_yaw: Any

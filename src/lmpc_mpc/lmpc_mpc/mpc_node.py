@@ -201,7 +201,7 @@ class MpcNode(LmpcNode):
                           now_s)
 
     @staticmethod
-    def _newest(store: dict, stamp_s: float):  # type: ignore[no-untyped-def]
+    def _newest(store: dict, stamp_s: float):
         older = [k for k in store if k <= stamp_s]
         return store[max(older)] if older else None
 
@@ -234,7 +234,7 @@ class MpcNode(LmpcNode):
             pub.publish(msg)
         self._publish_markers(obs, stamp)
 
-    def _publish_markers(self, obs: Observation, stamp) -> None:  # type: ignore[no-untyped-def]
+    def _publish_markers(self, obs: Observation, stamp) -> None:
         """The candidates and the agents' predictions as MarkerArrays (frame ``map``).
         Each array starts with a DELETEALL so lines of agents gone out of view vanish."""
         ctl = self.controller
@@ -254,7 +254,7 @@ class MpcNode(LmpcNode):
             pub.publish(arr)
 
     @staticmethod
-    def _marker(line: MirrorLine, stamp) -> Marker:  # type: ignore[no-untyped-def]
+    def _marker(line: MirrorLine, stamp) -> Marker:
         m = Marker()
         m.header.frame_id = "map"
         m.header.stamp = stamp

@@ -41,7 +41,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import casadi as ca
 import numpy as np
@@ -157,7 +157,7 @@ def rk4_step(f: ca.Function, s: ca.SX, u: ca.SX, dt_s: float) -> ca.SX:
     return s + dt_s / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
-def simulate_bicycle(x0: Sequence[float], controls: np.ndarray, *, dt_s: float,
+def simulate_bicycle(x0: Sequence[float] | np.ndarray, controls: np.ndarray, *, dt_s: float,
                      vehicle: VehicleParams = DEFAULT_VEHICLE) -> np.ndarray:
     """Roll the same model out in numpy (RK4): (len(controls)+1, 4) states."""
     ratio = vehicle.lr_m / vehicle.wheelbase_m
@@ -237,7 +237,7 @@ class MpcSolver:
         lbx: list[float] = []
         ubx: list[float] = []
         x_lb, x_ub, u_lb, u_ub = box_bounds(veh)
-        cost = 0
+        cost: Any = 0  # a CasADi expression after the first term
         # FATROP's stage layout: per stage k the gap-closing rows (x_{k+1} = F(x_k, u_k))
         # first, then the stage's path constraints.
         for k in range(n + 1):
@@ -291,7 +291,7 @@ class MpcSolver:
         equality = [bool(lo == hi) for lo, hi in zip(lbg, ubg)]
         budget = self.config.time_budget_s
         if self.solver_name == "fatrop":
-            opts = {
+            opts: dict[str, Any] = {
                 "structure_detection": "manual",
                 "N": n,
                 "nx": [NX] * (n + 1),

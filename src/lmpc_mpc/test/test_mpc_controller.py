@@ -107,7 +107,8 @@ def _decision(ego_xy, *, stamp_s: float, latency_s: float = 0.0, ttl_s: float = 
     return Decision(stamp_s=stamp_s, seq=1, decision_id=f"d{stamp_s}", source="mock",
                     latency_s=latency_s, ttl_s=ttl_s,
                     ego_trajectory=BezierTrajectory(candidate_id=0, control_points=cps),
-                    accel_interval=accel_idx, steer_interval=CFG.decision_space.neutral_steer_index,
+                    accel_interval=accel_idx,
+                    steer_interval=CFG.decision_space.neutral_steer_index,
                     weights=levels, space_hash=CFG.decision_space.space_hash)
 
 
@@ -521,4 +522,5 @@ def _headway_problem(ob, ref):
     n = CFG.horizon
     return MpcProblem(x0=(0.0, 0.0, 0.0, 10.0), u_prev=(0.0, 0.0), u_prev2=(0.0, 0.0),
                       reference=ref, reference_curvature_1pm=np.zeros(n + 1),
-                      weights=CFG.decision_space.weights_for(None), bias=(0.0, 0.0), obstacles=(ob,))
+                      weights=CFG.decision_space.weights_for(None), bias=(0.0, 0.0),
+                      obstacles=(ob,))

@@ -39,7 +39,8 @@ def _stopping_problem(obstacles: tuple[Obstacle, ...]) -> MpcProblem:
     ref = _braking_reference(v0_mps=7.2, stop_at_m=8.0, decel_mps2=3.2)
     return MpcProblem(x0=(0.0, 0.0, 0.0, 7.2), u_prev=(0.2, 0.0), u_prev2=(0.2, 0.0),
                       reference=ref, reference_curvature_1pm=np.zeros(N + 1),
-                      weights=CFG.decision_space.weights_for(None), bias_accel_mps2=np.full(N, -3.0),
+                      weights=CFG.decision_space.weights_for(None),
+                      bias_accel_mps2=np.full(N, -3.0),
                       obstacles=obstacles)
 
 
