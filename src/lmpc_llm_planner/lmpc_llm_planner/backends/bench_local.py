@@ -89,7 +89,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parsed = parse_decision(reply.text or "", request=req) if reply.ok else None
         ref = json.loads(rules.complete(req).text or "{}")
         ans = parsed.wire if parsed and parsed.success else None
-        agree = bool(ans) and (
+        agree = ans is not None and (
             ans.scenario_encoding.ego_trajectory == ref["scenario_encoding"]["ego_trajectory"]
             and ans.action_guidance.accel_interval == ref["action_guidance"]["accel_interval"])
         full_tokens = len(backend.tokenize(backend.chat_prompt(req).text))

@@ -77,7 +77,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     texts: dict[str, list[str]] = {"local": [], "openai": []}
     for i, req in enumerate(requests(args.n, max(local_cfg.deadline_s,
                                                  server_cfg.deadline_s))):
-        order = [("local", local), ("openai", remote)]
+        order: list[tuple[str, Any]] = [("local", local), ("openai", remote)]
         for name, backend in order if i % 2 == 0 else order[::-1]:
             reply = backend.complete(req)
             parsed = parse_decision(reply.text or "", request=req) if reply.ok else None
@@ -89,7 +89,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             texts[name].append(reply.text or "")
             print(json.dumps(row), flush=True)
     same = sum(a == b for a, b in zip(texts["local"], texts["openai"]))
-    out = {name: summary(r) for name, r in rows.items()}
+    out: dict[str, Any] = {name: summary(r) for name, r in rows.items()}
     out["same_text"] = f"{same}/{len(texts['local'])}"
     out["response_form"] = remote.confirmed_format
     print(json.dumps({"summary": out}))
