@@ -33,8 +33,10 @@ bench: install
 	$(PY) scripts/benchmark.py --families si,usi,lane,rab,eoa --seeds 0-24 \
 		--methods mpc,lmpc-rules --out runs/bench
 
+# mypy: the modules listed in pyproject.toml [tool.mypy] (issue 15's scope; it says why).
 lint: install
 	$(PY) -m flake8 src scripts test
+	$(PY) -m mypy
 
 test: install lint
 	$(PY) -m pytest

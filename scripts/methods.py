@@ -92,7 +92,7 @@ def make_planner(method: str, instruction: Optional[str] = None, *,
         load_planner_config,
     )
     from lmpc_llm_planner.planner import PlannerCore
-    from lmpc_mpc.config import load_mpc_config
+    from lmpc_msgs_py.vocabulary import load_decision_space
 
     backend_name = method.removeprefix("lmpc-")
     overrides: dict[str, Any] = {"backend": backend_name}
@@ -113,7 +113,7 @@ def make_planner(method: str, instruction: Optional[str] = None, *,
         overrides.update(latency_overrides(*latency, period_s=base.period_s, ttl_s=base.ttl_s))
     config = load_planner_config(path, overrides=overrides)
     core = PlannerCore(config, backend if backend is not None else make_backend(config),
-                       load_mpc_config(), log_path=log_path)
+                       load_decision_space(), log_path=log_path)
     if instruction:
         core.on_instruction(instruction)
     return core

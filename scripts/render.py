@@ -114,11 +114,33 @@ class DecisionInfo:
             source=str(data.get("source", "?")), mode=str(data.get("mode", "normal")),
             attention=tuple(str(a) for a in data.get("attention", ())),
             ego_candidate=ego.get("candidate_id"),
-            accel_bias_mps2=float(data.get("accel_bias_mps2", 0.0)),
-            steer_bias_rad=float(data.get("steer_bias_rad", 0.0)),
+            accel_bias_mps2=_bias(data, "accel_bias_mps2", 0),
+            steer_bias_rad=_bias(data, "steer_bias_rad", 1),
             weights={k: str(v) for k, v in (data.get("weights") or {}).items()},
             reasoning=str(data.get("reasoning", "")),
         )
+
+
+@functools.cache
+def _packaged_space() -> Any:
+    from lmpc_msgs_py.vocabulary import load_decision_space
+
+    return load_decision_space()
+
+
+def _bias(data: dict[str, Any], name: str, axis: int) -> float:
+    """A decision's bias for the picture: ``Decision@1`` logs carry it (``name``);
+    ``Decision@2`` carries interval indices, resolved here in the packaged decision space
+    (0.0 when the log names another space or no indices)."""
+    if name in data:
+        return float(data[name])
+    space = _packaged_space()
+    try:
+        if data.get("space_hash") == space.space_hash:
+            return space.bias_for(int(data["accel_interval"]), int(data["steer_interval"]))[axis]
+    except (KeyError, IndexError, TypeError, ValueError):
+        pass
+    return 0.0
 
 
 @dataclass(frozen=True)

@@ -286,6 +286,13 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     ap.add_argument("--planner-config", type=Path,
                     help="planner YAML (default: the packaged config/planner.yaml)")
     ap.add_argument("--mock-script", type=Path, help="scripted decisions for --planner mock")
+    ap.add_argument("--mpc-config", type=Path,
+                    help="MPC YAML (default: the packaged config/mpc.yaml); its "
+                         "decision_space_file is the MPC's decision space")
+    ap.add_argument("--decision-space", type=Path,
+                    help="the planner's decision-space YAML: action intervals and weight pool "
+                         "(default: the packaged one). It must equal the MPC's (same hash), "
+                         "or the graph does not start")
     ap.add_argument("--clock", choices=["sync", "realtime"], default="sync")
     ap.add_argument("--run-dir", type=Path,
                     help="run folder (default runs/<scenario>-<seed>-<time>; with --scene "
@@ -356,6 +363,8 @@ def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, 
         "mpc": {"use_sim_time": True, "clock_mode": args.clock,
                 "profile_file": str(run_dir / "profile_mpc.json")},
     }
+    if args.mpc_config is not None:
+        params["mpc"]["config_file"] = str(args.mpc_config.resolve())
     if args.scene is not None:
         params["bridge"]["scene_file"] = str(args.scene.resolve())
     if args.planner not in ("none", "mock"):
@@ -365,6 +374,8 @@ def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, 
         for name in ("decision_latency", "emergency_latency"):
             if getattr(args, name) is not None:
                 params["planner"][f"{name}_s"] = float(getattr(args, name))
+        if args.decision_space is not None:
+            params["planner"]["decision_space_file"] = str(args.decision_space.resolve())
         if args.planner_config:
             params["planner"]["config_file"] = str(args.planner_config.resolve())
         elif args.planner == "local":
@@ -372,7 +383,30 @@ def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, 
             params["planner"]["config_file"] = str(LOCAL_CONFIG_PATH)
     elif args.planner == "mock":
         params["mock_llm"] = {"use_sim_time": True, "script_file": str(args.mock_script.resolve())}
+        if args.decision_space is not None:
+            params["mock_llm"]["decision_space_file"] = str(args.decision_space.resolve())
     return params
+
+
+def decision_space_mismatch(args: argparse.Namespace) -> Optional[str]:
+    """Why the graph must not start: the planner's and the MPC's decision spaces differ
+    (or one of the files is bad); None when they are the same (by hash) or no planner runs.
+    The MPC would refuse every decision of another space (``lmpc_mpc.controller``)."""
+    if args.planner == "none":
+        return None
+    from lmpc_msgs_py.vocabulary import DecisionSpaceError, load_decision_space
+    from lmpc_mpc.config import MpcConfigError, load_mpc_config
+
+    try:
+        mpc = load_mpc_config(args.mpc_config).decision_space
+        planner = load_decision_space(args.decision_space)
+    except (MpcConfigError, DecisionSpaceError) as exc:
+        return str(exc)
+    if planner.space_hash == mpc.space_hash:
+        return None
+    return (f"decision spaces differ, no node started: planner {planner.describe()}, MPC "
+            f"{mpc.describe()} (from {args.mpc_config or 'the packaged MPC config'}); give "
+            "both the same file (--decision-space and the MPC config's decision_space_file)")
 
 
 def run(args: argparse.Namespace, stops: Optional[StopSignals] = None) -> dict[str, object]:
@@ -405,6 +439,10 @@ def run(args: argparse.Namespace, stops: Optional[StopSignals] = None) -> dict[s
             return scene_failure(run_dir, args, f"stopped by {_signal_names(stops)} while "
                                  "building the scene (no node was started)")
         args.scenario, args.seed = scene.family, scene.seed
+    mismatch = decision_space_mismatch(args)
+    if mismatch is not None:
+        stops.stopping = True
+        return scene_failure(run_dir, args, mismatch)
     graph = Graph(run_dir, ros_env(args.domain_id), echo=not args.quiet)
     params = node_params(args, run_dir)
     # Keep the planner (a local LLM may saturate a core) off the core the MPC uses.
@@ -495,9 +533,11 @@ def _start_recorder(graph: Graph, run_dir: Path, params: dict[str, dict[str, obj
 
 
 def scene_failure(run_dir: Path, args: argparse.Namespace, detail: str) -> dict[str, object]:
-    """Summary of a run that never started because its scene file is wrong."""
+    """Summary of a run that never started: its scene file is wrong, or the planner's and
+    the MPC's decision spaces differ."""
     summary: dict[str, object] = {
-        "scenario": str(args.scene), "seed": args.seed, "planner": args.planner,
+        "scenario": str(args.scene) if args.scene is not None else args.scenario,
+        "seed": args.seed, "planner": args.planner,
         "instruction": args.instruction, "clock": args.clock, "outcome": "error",
         "detail": detail, "sim_time_s": 0.0,
         "wall_time_s": 0.0, "real_time_factor": None, "collisions": 0, "decisions": 0,

@@ -33,12 +33,13 @@ SUBSCRIBERS = {
 }
 # per topic: a float field to poison, and physically absurd values (field -> value)
 NUMBER_FIELD = {"/lmpc/control": "accel_mps2", "/lmpc/planner/status": "stamp_s",
-                "/lmpc/decision": "accel_bias_mps2", "/lmpc/ego_state": "v_mps",
+                "/lmpc/decision": "latency_s", "/lmpc/ego_state": "v_mps",
                 "/lmpc/agents": "sensing_range_m", "/lmpc/signals": "stamp_s"}
 ABSURD: dict[str, list[dict[str, Any]]] = {
     "/lmpc/control": [{"steer_rad": 3.0}, {"accel_mps2": 50.0}, {"accel_mps2": -50.0}],
     "/lmpc/ego_state": [{"v_mps": 200.0}, {"steer_rad": 3.0}, {"a_mps2": -50.0}],
-    "/lmpc/decision": [{"accel_bias_mps2": 50.0}, {"steer_bias_rad": 3.0}],
+    "/lmpc/decision": [{"latency_s": 1e4}, {"accel_interval": 99},
+                       {"space_hash": "not a hash"}],
     "/lmpc/agents": [{"sensing_range_m": 1e6}],
     "/lmpc/signals": [{"stamp_s": -5.0}],
     "/lmpc/planner/status": [{"decisions": -1}],

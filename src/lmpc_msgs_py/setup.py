@@ -6,9 +6,11 @@ setup(
     name=package_name,
     version="0.1.0",
     packages=[package_name],
+    package_data={package_name: ["config/*.yaml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", [package_name + "/config/decision_space.yaml"]),
     ],
     install_requires=["setuptools", "pydantic>=2.7,<3", "pyyaml>=6,<7"],
     python_requires=">=3.10",

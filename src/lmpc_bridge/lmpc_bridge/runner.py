@@ -26,7 +26,9 @@ class PlannerLike(Protocol):
 
 
 class ControllerLike(Protocol):
-    def on_decision(self, decision: Decision) -> None: ...
+    def on_decision(self, decision: Decision) -> str | None:
+        """Store ``decision``; why it was refused (another decision space), or None."""
+        ...
 
     def compute(self, obs: Observation) -> Control: ...
 
@@ -99,7 +101,11 @@ def run_episode(sim: SumoSim, *, family: str, seed: int, controller: ControllerL
                 last_decision_id = decision.decision_id
                 if decision.source == "fallback":
                     fallbacks += 1
-                controller.on_decision(decision)
+                refusal = controller.on_decision(decision)
+                if refusal is not None:
+                    # in process the planner and the controller were built together: a
+                    # refused decision is a wiring error, not a fault to ride out
+                    raise RuntimeError(f"the controller refused a decision: {refusal}")
         sim.step(control)
     status = sim.status()
     return EpisodeResult(

@@ -60,7 +60,7 @@ class EveryNPlanner:
             source="fallback" if self.calls == 1 else "rules", latency_s=0.0,
             ego_trajectory=BezierTrajectory(candidate_id=0, control_points=((0.0, 0.0),
                                                                             (1.0, 0.0))),
-            accel_interval=0, steer_interval=0, accel_bias_mps2=0.0, steer_bias_rad=0.0)
+            accel_interval=0, steer_interval=0, space_hash="0123456789abcdef")
 
 
 class FlakyController(StandInController):

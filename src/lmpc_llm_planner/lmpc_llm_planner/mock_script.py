@@ -22,11 +22,11 @@ from pathlib import Path
 from typing import Any, Literal, Optional, Union
 
 import yaml
-from lmpc_mpc.config import MpcConfig
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from lmpc_msgs_py.messages import Decision
 from lmpc_msgs_py.observation import Observation
+from lmpc_msgs_py.vocabulary import DecisionSpace
 
 from lmpc_llm_planner.scene import build_scene
 from lmpc_llm_planner.schema import (
@@ -102,14 +102,14 @@ class MockPlanner:
     def __init__(
         self,
         script: MockScript,
-        mpc_config: MpcConfig,
+        space: DecisionSpace,
         *,
         period_s: float = 2.5,
         ttl_s: float = 5.0,
         lookahead_m: float = 60.0,
     ) -> None:
         self.script = script
-        self.mpc_config = mpc_config
+        self.space = space
         self.period_s = period_s
         self.ttl_s = ttl_s
         self.lookahead_m = lookahead_m
@@ -117,7 +117,7 @@ class MockPlanner:
         self.last_decision: Optional[Decision] = None
         self._current: Optional[int] = None
         self._t_last: Optional[float] = None
-        n_a, n_s = len(mpc_config.accel_intervals_mps2), len(mpc_config.steer_intervals_rad)
+        n_a, n_s = len(space.accel_intervals_mps2), len(space.steer_intervals_rad)
         for i, e in enumerate(script.entries):
             if e.accel_interval is not None and e.accel_interval >= n_a:
                 raise MockScriptError(f"entry {i}: accel_interval {e.accel_interval} "
@@ -156,7 +156,7 @@ class MockPlanner:
 
     def build(self, entry: MockEntry, obs: Observation) -> Decision:
         """Translate one entry for this observation."""
-        cfg = self.mpc_config
+        cfg = self.space
         scene = build_scene(obs, lookahead_m=self.lookahead_m, max_agents=200)
         accel = cfg.accel_intervals_mps2
         levels: dict[str, Any] = {"tracking": "normal", "action": "normal",
@@ -195,4 +195,4 @@ class MockPlanner:
             decision_id=f"{int(round(obs.stamp_s * 1000))}-{n}", seq=n, source="mock",
             mode="normal", latency_s=0.0, tokens_in=0, tokens_out=0, ttl_s=self.ttl_s,
         )
-        return translate(wire, scene=scene, mpc_config=cfg, meta=meta)
+        return translate(wire, scene=scene, space=cfg, meta=meta)

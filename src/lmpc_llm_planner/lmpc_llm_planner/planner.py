@@ -30,13 +30,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Optional
 
-from lmpc_mpc.config import MpcConfig
 from lmpc_mpc.reference import ReferencePathError
 
 from lmpc_msgs_py.messages import Decision
 from lmpc_msgs_py.observation import Observation
+from lmpc_msgs_py.vocabulary import DecisionSpace
 
-from lmpc_llm_planner.backends.base import Backend, BackendReply, DecisionRequest
+from lmpc_llm_planner.backends.base import Backend, BackendReply, DecisionRequest, \
+    PreviousDecision
 from lmpc_llm_planner.config import PlannerConfig
 from lmpc_llm_planner.lookahead import predict_observation
 from lmpc_llm_planner.prompt import build_prompt, estimate_tokens, sanitize_instruction
@@ -175,7 +176,7 @@ def build_request(
     scene: Scene,
     *,
     config: PlannerConfig,
-    mpc_config: MpcConfig,
+    space: DecisionSpace,
     mode: Mode = "normal",
     stage: Stage = "all",
     instruction: Optional[str] = None,
@@ -185,16 +186,17 @@ def build_request(
 ) -> DecisionRequest:
     """The request for one backend call: prompt text plus the structured inputs."""
     prompt = build_prompt(
-        scene, mpc_config=mpc_config, mode=mode, stage=stage, instruction=instruction,
+        scene, space=space, mode=mode, stage=stage, instruction=instruction,
         previous=previous, retry_error=retry_error, prior_stages=prior_stages or None,
         chars_per_token=config.chars_per_token,
     )
     return DecisionRequest(
         prompt=prompt.text, mode=mode, scene=scene,
-        accel_intervals_mps2=mpc_config.accel_intervals_mps2,
-        steer_intervals_rad=mpc_config.steer_intervals_rad,
+        accel_intervals_mps2=space.accel_intervals_mps2,
+        steer_intervals_rad=space.steer_intervals_rad,
         json_schema=decision_json_schema(mode=mode, stage=stage), stage=stage,
-        prior_stages=dict(prior_stages or {}), instruction=instruction, previous=previous,
+        prior_stages=dict(prior_stages or {}), instruction=instruction,
+        previous=None if previous is None else PreviousDecision.of(previous, space),
         retry_error=retry_error, tokens_estimate=prompt.tokens_estimate,
         deadline_s=config.deadline_s,
     )
@@ -207,13 +209,14 @@ class PlannerCore:
         self,
         config: PlannerConfig,
         backend: Backend,
-        mpc_config: MpcConfig,
+        space: DecisionSpace,
         *,
         log_path: Optional[str | Path] = None,
     ) -> None:
         self.config = config
         self.backend = backend
-        self.mpc_config = mpc_config
+        self.space = space
+        """The decision space the planner offers and its Decisions name (by hash)."""
         self.counters = PlannerCounters()
         self.instruction: Optional[str] = None
         self.last_decision: Optional[Decision] = None
@@ -329,7 +332,7 @@ class PlannerCore:
             if attempt:
                 self.counters.retries += 1
             request = build_request(
-                scene, config=self.config, mpc_config=self.mpc_config, mode=mode, stage=stage,
+                scene, config=self.config, space=self.space, mode=mode, stage=stage,
                 instruction=self.instruction, previous=self.last_decision,
                 retry_error=retry_error, prior_stages=prior,
             )
@@ -394,7 +397,7 @@ class PlannerCore:
             meta = self._next_meta(scene, source=self.backend.name, mode=mode,
                                    latency_s=latency_s, tokens_in=tokens_in,
                                    tokens_out=tokens_out)
-            decision = translate(wire, scene=scene, mpc_config=self.mpc_config, meta=meta,
+            decision = translate(wire, scene=scene, space=self.space, meta=meta,
                                  previous=self.last_decision)
         floor = apply_safety_floor(
             decision, scene=scene, ttc_s=self.config.safety_floor_ttc_s,
@@ -435,8 +438,8 @@ class PlannerCore:
             reasoning=f"Fallback (baseline behaviour) after {len(attempts)} failed call(s); "
                       f"last error: {reason}.",
             action_guidance=ActionGuidance(
-                accel_interval=self.mpc_config.neutral_accel_index,
-                steer_interval=self.mpc_config.neutral_steer_index,
+                accel_interval=self.space.neutral_accel_index,
+                steer_interval=self.space.neutral_steer_index,
             ),
             weight_adjustment=WeightAdjustment(
                 tracking="normal", action="normal", smoothness="normal", safety="normal"
@@ -444,7 +447,7 @@ class PlannerCore:
         )
         meta = self._next_meta(scene, source="fallback", mode=mode, latency_s=latency_s,
                                tokens_in=tokens_in, tokens_out=tokens_out)
-        return translate(wire, scene=scene, mpc_config=self.mpc_config, meta=meta)
+        return translate(wire, scene=scene, space=self.space, meta=meta)
 
     # -- decision log ---------------------------------------------------------------------
     def _log(self, record: dict[str, Any]) -> None:

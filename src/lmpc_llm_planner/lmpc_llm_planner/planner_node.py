@@ -3,6 +3,8 @@
 Parameters (mapped once into ``PlannerConfig``): ``config_file`` ('' = packaged
 default), ``backend`` ('' = from the file), ``ego_id`` ('' = single ego),
 ``run_dir`` (decision log at ``run_dir/decisions.jsonl`` when set),
+``decision_space_file`` (the intervals and weight pool, '' = packaged default; the MPC
+must load the same file, it refuses Decisions of another space),
 ``decision_latency_s`` / ``emergency_latency_s`` (a simulated latency, < 0 = from
 the file; ``config.latency_overrides``), and ROS's own ``use_sim_time``.
 Topics and timing: see ``decision_node.py``.
@@ -13,10 +15,10 @@ import sys
 from pathlib import Path
 from typing import Any, Optional
 
-from lmpc_mpc.config import load_mpc_config
 from rcl_interfaces.msg import ParameterDescriptor
 
 from lmpc_msgs_py.base_node import run_node
+from lmpc_msgs_py.vocabulary import load_decision_space
 
 from lmpc_llm_planner.backends import make_backend
 from lmpc_llm_planner.config import latency_overrides, load_planner_config
@@ -33,8 +35,9 @@ class PlannerNode(DecisionNode):
         self.declare_parameter("config_file", "", desc(description="planner YAML ('' = default)"))
         self.declare_parameter("backend", "", desc(description="backend override ('' = file)"))
         self.declare_parameter("run_dir", "", desc(description="run folder for decisions.jsonl"))
-        self.declare_parameter("mpc_config_file", "",
-                               desc(description="MPC YAML for intervals / pools ('' = default)"))
+        self.declare_parameter("decision_space_file", "", desc(
+            description="decision-space YAML: intervals and weight pool ('' = default; the "
+                        "MPC must use the same)"))
         overrides: dict[str, Any] = {}
         backend = self.get_parameter("backend").value
         if backend:
@@ -54,14 +57,14 @@ class PlannerNode(DecisionNode):
             overrides.update(latency_overrides(latency[0], latency[1], period_s=base.period_s,
                                                ttl_s=base.ttl_s))
         config = load_planner_config(config_file, overrides=overrides)
-        mpc_config = load_mpc_config(self.get_parameter("mpc_config_file").value or None)
-        self.planner = PlannerCore(config, make_backend(config), mpc_config)
+        space = load_decision_space(self.get_parameter("decision_space_file").value or None)
+        self.planner = PlannerCore(config, make_backend(config), space)
         self.core = self.planner
         self.start()
         self.get_logger().info(
             f"backend={config.backend} stages={config.stages} period={config.period_s} s "
             f"latency={config.fixed_latency_s} s emergency={config.emergency_latency_s} s "
-            f"ttl={config.ttl_s} s "
+            f"ttl={config.ttl_s} s decision space {space.describe()} "
             f"log={config.decision_log or 'off'}"
         )
 

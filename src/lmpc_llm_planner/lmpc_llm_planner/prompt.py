@@ -38,10 +38,10 @@ import unicodedata
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Optional
 
-from lmpc_mpc.config import MpcConfig
 from lmpc_mpc.reference import Candidate
 
 from lmpc_msgs_py.messages import Agent, Decision
+from lmpc_msgs_py.vocabulary import DecisionSpace
 
 from lmpc_llm_planner.route import next_maneuver
 from lmpc_llm_planner.scene import AgentView, Scene
@@ -290,7 +290,7 @@ def _previous_line(prev: Optional[Decision], *, short: bool = False) -> str:
 def build_prompt(
     scene: Scene,
     *,
-    mpc_config: MpcConfig,
+    space: DecisionSpace,
     mode: str = "normal",
     stage: Stage = "all",
     instruction: Optional[str] = None,
@@ -332,8 +332,8 @@ def build_prompt(
             "only these ids may be attended:",
         ]
         out += [_agent_line(v) for v in scene.agents] or ["none"]
-    accel = mpc_config.accel_intervals_mps2
-    steer = mpc_config.steer_intervals_rad
+    accel = space.accel_intervals_mps2
+    steer = space.steer_intervals_rad
     out += [
         _interval_line("Accel intervals (m/s2)", accel, _accel_words(accel)),
         _interval_line("Steer intervals (rad, + = left)", steer, _steer_words(steer)),

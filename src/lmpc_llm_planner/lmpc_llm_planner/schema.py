@@ -28,9 +28,9 @@ from typing import Annotated, Any, Literal, Mapping, Optional
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from lmpc_msgs_py.messages import MAX_ID_CHARS
+from lmpc_msgs_py.messages import MAX_ID_CHARS, WeightLevel
 
-Level = Literal["low", "normal", "high"]
+Level = WeightLevel  # the level names of the decision space's weight pool (one definition)
 AgentId = Annotated[str, Field(min_length=1, max_length=MAX_ID_CHARS)]  # as the messages
 CandidateIndex = Annotated[int, Field(ge=0, le=2)]
 IntervalIndex = Annotated[int, Field(ge=0, le=31)]

@@ -8,9 +8,10 @@ the object), ``multiple_objects``, ``invalid_json`` (incl. truncated), ``non_fin
 ``out_of_range`` (an index outside the configured lists or the candidates actually
 offered), ``no_lane`` (an ego candidate that follows no lane).
 
-Translation turns indices into numbers the MPC uses: the chosen candidates'
-control points, the bias = interval midpoints (``MpcConfig.bias_for``) and the
-weight levels. The safety floor then keeps close / low-TTC agents attended.
+Translation turns the chosen candidates' indices into their control points; the
+interval indices and weight levels stay choices of the decision space (the Decision
+carries its hash), the MPC turns them into numbers (``lmpc_msgs_py.vocabulary``).
+The safety floor then keeps close / low-TTC agents attended.
 """
 from __future__ import annotations
 
@@ -21,11 +22,11 @@ from typing import Any, Literal, Optional, Sequence
 
 import numpy as np
 from lmpc_mpc.closeness import must_attend
-from lmpc_mpc.config import MpcConfig
 from lmpc_mpc.reference import Candidate, bezier_points, closest_heading
 from pydantic import ValidationError
 
 from lmpc_msgs_py.messages import AgentPrediction, BezierTrajectory, Decision, WeightLevels
+from lmpc_msgs_py.vocabulary import DecisionSpace
 
 from lmpc_llm_planner.backends.base import DecisionRequest
 from lmpc_llm_planner.scene import Scene, agent_candidates
@@ -237,11 +238,12 @@ def translate(
     wire: LlmDecision | EmergencyDecision,
     *,
     scene: Scene,
-    mpc_config: MpcConfig,
+    space: DecisionSpace,
     meta: DecisionMeta,
     previous: Optional[Decision] = None,
 ) -> Decision:
-    """Turn a validated wire decision into a ``Decision`` (indices -> numbers).
+    """Turn a validated wire decision into a ``Decision`` of ``space`` (indices and
+    levels, checked against the space, and its hash; the MPC turns them into numbers).
 
     An emergency answer has no scenario encoding (the paper's fast path skips that
     stage): the ego follows its route candidate, except that a deviation from the route
@@ -275,7 +277,7 @@ def translate(
             AgentPrediction(agent_id=agent_id, trajectory=to_trajectory(view.candidates[idx], idx))
         )
     guide: ActionGuidance = wire.action_guidance
-    accel_bias, steer_bias = mpc_config.bias_for(guide.accel_interval, guide.steer_interval)
+    space.bias_for(guide.accel_interval, guide.steer_interval)  # IndexError if out of range
     weights: WeightAdjustment = wire.weight_adjustment
     return Decision(
         stamp_s=scene.obs.stamp_s,
@@ -293,9 +295,8 @@ def translate(
         attention=tuple(attention),
         accel_interval=guide.accel_interval,
         steer_interval=guide.steer_interval,
-        accel_bias_mps2=float(accel_bias),
-        steer_bias_rad=float(steer_bias),
         weights=WeightLevels(**weights.model_dump()),
+        space_hash=space.space_hash,
         reasoning=wire.reasoning[:8000],
     )
 

@@ -10,10 +10,10 @@ from typing import Callable, Optional, Sequence
 
 import pytest
 from lmpc_mpc import synthetic as syn
-from lmpc_mpc.config import MpcConfig, load_mpc_config
 
 from lmpc_msgs_py.messages import Agent, MapSnapshot
 from lmpc_msgs_py.observation import Observation
+from lmpc_msgs_py.vocabulary import DecisionSpace, load_decision_space
 
 from lmpc_llm_planner.config import PlannerConfig, load_planner_config
 
@@ -26,8 +26,15 @@ BOX_M = 8.0
 
 
 @pytest.fixture(scope="session")
-def mpc_config() -> MpcConfig:
-    return load_mpc_config()
+def space() -> DecisionSpace:
+    """The packaged decision space (intervals and weight pool) the planner offers."""
+    return load_decision_space()
+
+
+@pytest.fixture(scope="session")
+def mpc_config(space: DecisionSpace) -> DecisionSpace:
+    """The same space under the name the tests used while it lived in the MPC config."""
+    return space
 
 
 @pytest.fixture(scope="session")

@@ -40,7 +40,7 @@ def road_obs(road, agents=(), *, x_m: float = 50.0, v_mps: float = 12.0, left: b
 def ask(obs, planner_config, mpc_config, instruction=None, mode="normal"):
     """The rules answer to ``obs``, validated: ``(wire decision, scene)``."""
     scene = build_scene(obs, lookahead_m=60.0, max_agents=20)
-    req = build_request(scene, config=planner_config, mpc_config=mpc_config,
+    req = build_request(scene, config=planner_config, space=mpc_config,
                         instruction=instruction, mode=mode)
     reply = RulesBackend(planner_config.rules).complete(req)
     res = parse_decision(reply.text, request=req)

@@ -14,7 +14,7 @@ def inputs(obs, planner_config, mpc_config, *, instruction=None, mode="normal",
            previous=None) -> RuleInputs:
     """The :class:`RuleInputs` of ``obs`` (scene analysed as the planner does)."""
     scene = build_scene(obs, lookahead_m=60.0, max_agents=20)
-    req = build_request(scene, config=planner_config, mpc_config=mpc_config,
+    req = build_request(scene, config=planner_config, space=mpc_config,
                         instruction=instruction, mode=mode, previous=previous)
     return rule_inputs(planner_config.rules, req)
 

@@ -41,7 +41,7 @@ def cfg_with(base: PlannerConfig, **kw) -> PlannerConfig:
 def request_for(obs, config, mpc_config, **kw):
     scene = build_scene(obs, lookahead_m=config.lookahead_m,
                         max_agents=config.max_agents_in_prompt)
-    return build_request(scene, config=config, mpc_config=mpc_config, **kw)
+    return build_request(scene, config=config, space=mpc_config, **kw)
 
 
 def two_cars():

@@ -15,7 +15,7 @@ from typing import Any, Callable, Optional
 
 import pytest
 from lmpc_mpc import synthetic as syn
-from lmpc_mpc.config import MpcConfig
+from lmpc_msgs_py.vocabulary import DecisionSpace
 
 from lmpc_llm_planner.backends import BackendError, make_backend
 from lmpc_llm_planner.backends.base import DecisionRequest
@@ -29,10 +29,10 @@ from lmpc_llm_planner.scene import build_scene
 SECRET = "sk-test-SECRET-0123456789abcdef"
 
 
-def make_request(obs, *, config: PlannerConfig, mpc_config: MpcConfig, **kw) -> DecisionRequest:
+def make_request(obs, *, config: PlannerConfig, space: DecisionSpace, **kw) -> DecisionRequest:
     scene = build_scene(obs, lookahead_m=config.lookahead_m,
                         max_agents=config.max_agents_in_prompt)
-    return build_request(scene, config=config, mpc_config=mpc_config, **kw)
+    return build_request(scene, config=config, space=space, **kw)
 
 
 def completion(content: Optional[str], *, usage: Optional[dict] = None,
@@ -144,7 +144,7 @@ def request_(left_turn_map, obs_factory, planner_config, mpc_config):
     agents = [syn.agent("car1", x_m=-1.6, y_m=30.0, yaw_rad=-math.pi / 2, v_mps=10.0,
                         lane_id="N_in_0")]
     return make_request(obs_factory(left_turn_map, agents=agents), config=planner_config,
-                        mpc_config=mpc_config)
+                        space=mpc_config)
 
 
 def rf_schema(body: dict[str, Any]) -> dict[str, Any]:

@@ -174,7 +174,7 @@ def core_request(core: PlannerCore, obs, **kw):
 
     scene = build_scene(obs, lookahead_m=core.config.lookahead_m,
                         max_agents=core.config.max_agents_in_prompt)
-    return build_request(scene, config=core.config, mpc_config=core.mpc_config, **kw)
+    return build_request(scene, config=core.config, space=core.space, **kw)
 
 
 def test_same_prompt_again_gets_the_same_answer(recorded, planner_config, mpc_config):

@@ -76,7 +76,8 @@ def test_emergency_trips_early_and_is_rate_limited(left_turn_map, obs_factory,
     stamps = [round(d.stamp_s, 3) for d in ds]
     assert stamps == [0.0, 1.0, 1.5, 2.0]  # normal at 0, emergencies every 0.5 s from 1.0
     assert [d.mode for d in ds] == ["normal", "emergency", "emergency", "emergency"]
-    assert ds[1].accel_bias_mps2 < 0.0 and "wrongway" in ds[1].attention
+    assert mpc_config.bias_for(ds[1].accel_interval, ds[1].steer_interval)[0] < 0.0
+    assert "wrongway" in ds[1].attention
     assert core.counters.emergencies == 3
 
 

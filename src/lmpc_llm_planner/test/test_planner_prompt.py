@@ -20,7 +20,7 @@ def scene(left_turn_map, obs_factory, oncoming_factory):
 
 
 def test_prompt_content(scene, mpc_config):
-    p = build_prompt(scene, mpc_config=mpc_config, instruction="drive conservatively")
+    p = build_prompt(scene, space=mpc_config, instruction="drive conservatively")
     text = p.text
     assert "car1: car" in text and "oncoming" in text and "lane N_in_0" in text
     assert "turn left at the junction (your route)" in text
@@ -34,8 +34,8 @@ def test_prompt_content(scene, mpc_config):
 
 
 def test_emergency_prompt_is_short(scene, mpc_config):
-    normal = build_prompt(scene, mpc_config=mpc_config)
-    emergency = build_prompt(scene, mpc_config=mpc_config, mode="emergency")
+    normal = build_prompt(scene, space=mpc_config)
+    emergency = build_prompt(scene, space=mpc_config, mode="emergency")
     assert emergency.tokens_estimate < normal.tokens_estimate <= 1500
     assert emergency.tokens_estimate <= 600
     assert "scenario_encoding" not in emergency.text
@@ -43,7 +43,7 @@ def test_emergency_prompt_is_short(scene, mpc_config):
 
 
 def test_retry_prompt_carries_error(scene, mpc_config):
-    p = build_prompt(scene, mpc_config=mpc_config, retry_error="fenced: no code fences")
+    p = build_prompt(scene, space=mpc_config, retry_error="fenced: no code fences")
     assert p.text.rstrip().endswith("Answer again.") and "fenced" in p.text
 
 

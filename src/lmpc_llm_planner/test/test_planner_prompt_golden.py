@@ -20,7 +20,7 @@ from typing import Any, Callable, Optional
 
 import pytest
 from lmpc_mpc import synthetic as syn
-from lmpc_mpc.config import MpcConfig
+from lmpc_msgs_py.vocabulary import DecisionSpace
 
 from lmpc_msgs_py.messages import Agent, AgentSignals, HistoryPoint
 from lmpc_msgs_py.observation import Observation
@@ -85,7 +85,7 @@ def left_turn_scene(obs_factory: Callable[..., Observation], left_turn_map: Any)
     return build_scene(obs, lookahead_m=60.0, max_agents=20)
 
 
-def previous_decision(scene: Scene, mpc_config: MpcConfig) -> Any:
+def previous_decision(scene: Scene, mpc_config: DecisionSpace) -> Any:
     """A fixed previous decision (hand-made wire object, so no reasoner is involved)."""
     ids = list(scene.agent_ids)[:2]
     wire = LlmDecision(
@@ -98,7 +98,7 @@ def previous_decision(scene: Scene, mpc_config: MpcConfig) -> Any:
     )
     meta = DecisionMeta(decision_id="10000-4", seq=4, source="llm:golden", mode="normal",
                         latency_s=1.7, tokens_in=0, tokens_out=0, ttl_s=5.0)
-    return translate(wire, scene=scene, mpc_config=mpc_config, meta=meta)
+    return translate(wire, scene=scene, space=mpc_config, meta=meta)
 
 
 def head_on_scene(obs_factory: Callable[..., Observation], left_turn_map: Any) -> Scene:
@@ -126,13 +126,13 @@ def scenes(obs_factory, left_turn_map, mpc_config) -> dict[str, Prompt]:
     slow = syn.agent("slow1", x_m=80.0, y_m=-4.8, yaw_rad=EAST, v_mps=5.0, lane_id="E0_0")
     lane = build_scene(syn.observation(road, ego, [slow]), lookahead_m=60.0, max_agents=20)
     return {
-        "normal_10_agents": build_prompt(turn, mpc_config=mpc_config, previous=prev,
+        "normal_10_agents": build_prompt(turn, space=mpc_config, previous=prev,
                                          instruction='drive "conservatively", please'),
         "emergency_head_on": build_prompt(head_on_scene(obs_factory, left_turn_map),
-                                          mpc_config=mpc_config, mode="emergency",
+                                          space=mpc_config, mode="emergency",
                                           previous=prev),
         "chained_stage_2_retry": build_prompt(
-            lane, mpc_config=mpc_config, stage="action_guidance",
+            lane, space=mpc_config, stage="action_guidance",
             instruction="the right lane is closed ahead",
             prior_stages={"scenario_encoding": {"ego_trajectory": 1, "attention": ["slow1"],
                                                 "agent_trajectories": {"slow1": 0}}},

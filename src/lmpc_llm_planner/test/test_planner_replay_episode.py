@@ -15,6 +15,7 @@ from typing import Any
 
 import pytest
 from lmpc_mpc.config import load_mpc_config
+from lmpc_msgs_py.vocabulary import load_decision_space
 
 from lmpc_llm_planner.backends.base import BackendReply, DecisionRequest
 from lmpc_llm_planner.backends.replay import ReplayBackend, load_replay_log
@@ -88,14 +89,14 @@ def _controls(result: Any) -> list[tuple]:
 def test_replayed_run_repeats_the_llm_run_exactly(sim: Any, tmp_path: Path) -> None:
     log = tmp_path / "decisions.jsonl"
     cfg = load_planner_config()
-    llm = PlannerCore(cfg, SimulatedLlm(), load_mpc_config(), log_path=log)
+    llm = PlannerCore(cfg, SimulatedLlm(), load_decision_space(), log_path=log)
     first, first_decisions = _episode(sim, llm)
     assert len(first_decisions) >= 4
     assert {d.latency_s for d in first_decisions} == {LATENCY_S, 2 * LATENCY_S}  # re-ask
     assert llm.counters.errors["prose"] == 1
 
     replay_backend = ReplayBackend(load_replay_log(log), ReplayConfig(latency="report"))
-    replay = PlannerCore(cfg, replay_backend, load_mpc_config())
+    replay = PlannerCore(cfg, replay_backend, load_decision_space())
     second, second_decisions = _episode(sim, replay)
 
     assert replay_backend.hits["miss"] == 0 and replay_backend.name == "llm:simulated"

@@ -15,7 +15,7 @@ from lmpc_llm_planner.validation import parse_decision
 
 def ask(obs, planner_config, mpc_config, **kw):
     scene = build_scene(obs, lookahead_m=60.0, max_agents=20)
-    req = build_request(scene, config=planner_config, mpc_config=mpc_config, **kw)
+    req = build_request(scene, config=planner_config, space=mpc_config, **kw)
     reply = RulesBackend(planner_config.rules).complete(req)
     res = parse_decision(reply.text, request=req)
     assert res.success, res.message  # the rules answer passes the same validation

@@ -42,20 +42,27 @@ def scene(left_turn_map, obs_factory, oncoming_factory):
 
 
 @pytest.mark.parametrize("accel, steer", [(0, 0), (2, 2), (5, 4), (3, 1)])
-def test_bias_is_interval_midpoints(scene, mpc_config, accel, steer):
+def test_decision_carries_indices_and_the_space_hash(scene, mpc_config, accel, steer):
     d = translate(wire(ego=0, attention=[], trajectories={}, accel=accel, steer=steer),
-                  scene=scene, mpc_config=mpc_config, meta=META)
+                  scene=scene, space=mpc_config, meta=META)
+    assert (d.accel_interval, d.steer_interval) == (accel, steer)
+    assert d.space_hash == mpc_config.space_hash
+    assert "accel_bias_mps2" not in d.model_dump()  # the MPC turns indices into numbers
     a_lo, a_hi = mpc_config.accel_intervals_mps2[accel]
     s_lo, s_hi = mpc_config.steer_intervals_rad[steer]
-    assert d.accel_bias_mps2 == pytest.approx(0.5 * (a_lo + a_hi))
-    assert d.steer_bias_rad == pytest.approx(0.5 * (s_lo + s_hi))
-    assert (d.accel_interval, d.steer_interval) == (accel, steer)
+    assert mpc_config.bias_for(accel, steer) == (0.5 * (a_lo + a_hi), 0.5 * (s_lo + s_hi))
+
+
+def test_an_index_outside_the_space_is_refused(scene, mpc_config):
+    with pytest.raises(IndexError, match="accel_index 6 out of range"):
+        translate(wire(ego=0, attention=[], trajectories={}, accel=6, steer=0),
+                  scene=scene, space=mpc_config, meta=META)
 
 
 @pytest.mark.parametrize("ego_idx", [0, 1, 2])
 def test_control_points_are_the_chosen_candidates(scene, mpc_config, ego_idx):
     d = translate(wire(ego=ego_idx, attention=["car1"], trajectories={"car1": 1}, accel=3,
-                       steer=2), scene=scene, mpc_config=mpc_config, meta=META)
+                       steer=2), scene=scene, space=mpc_config, meta=META)
     ego_c = scene.ego_candidates[ego_idx]
     assert d.ego_trajectory.candidate_id == ego_idx
     assert flat(d.ego_trajectory.control_points) == pytest.approx(flat(ego_c.control_points))
@@ -68,7 +75,7 @@ def test_control_points_are_the_chosen_candidates(scene, mpc_config, ego_idx):
 
 def test_attended_without_choice_gets_closest_heading(scene, mpc_config):
     d = translate(wire(ego=1, attention=["car2", "car2", "car1"], trajectories={}, accel=3,
-                       steer=2), scene=scene, mpc_config=mpc_config, meta=META)
+                       steer=2), scene=scene, space=mpc_config, meta=META)
     assert d.attention == ("car2", "car1")  # repeats dropped, order kept
     for pred in d.agent_predictions:
         assert pred.trajectory.candidate_id == scene.agent(pred.agent_id).closest_heading_id
@@ -76,7 +83,7 @@ def test_attended_without_choice_gets_closest_heading(scene, mpc_config):
 
 def test_decision_fields_and_wire_round_trip(scene, mpc_config):
     d = translate(wire(ego=1, attention=["car1"], trajectories={}, accel=1, steer=2),
-                  scene=scene, mpc_config=mpc_config, meta=META)
+                  scene=scene, space=mpc_config, meta=META)
     assert (d.source, d.latency_s, d.tokens_in, d.tokens_out, d.ttl_s) == \
         ("rules", 0.3, 100, 20, 5.0)
     assert d.weights.safety == "high" and d.weights.tracking == "low"
@@ -94,7 +101,7 @@ def test_safety_floor_adds_close_agent(left_turn_map, obs_factory, mpc_config):
     scene = build_scene(obs_factory(left_turn_map, agents=[near, far]), lookahead_m=60.0,
                         max_agents=20)
     d = translate(wire(ego=1, attention=[], trajectories={}, accel=3, steer=2),
-                  scene=scene, mpc_config=mpc_config, meta=META)
+                  scene=scene, space=mpc_config, meta=META)
     res = apply_safety_floor(d, scene=scene, ttc_s=3.0, dist_m=10.0, lookahead_m=60.0)
     assert res.added == ("near",)
     assert res.decision.attention == ("near",)
@@ -131,20 +138,20 @@ def test_emergency_keeps_the_previous_trajectory_while_on_it(scene, mpc_config):
     route, other, before, kept = _deviation_then_emergency(scene, mpc_config)
     assert kept.ego_trajectory == before.ego_trajectory
     assert set(kept.attention) == set(scene.agent_ids)
-    fresh = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META)
+    fresh = translate(_emergency_wire(), scene=scene, space=mpc_config, meta=META)
     assert flat(fresh.ego_trajectory.control_points) == pytest.approx(flat(route.control_points))
     far = before.model_copy(update={"ego_trajectory": before.ego_trajectory.model_copy(
         update={"control_points": tuple((x + 10.0, y) for x, y in
                                         before.ego_trajectory.control_points)})})
-    off = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META,
+    off = translate(_emergency_wire(), scene=scene, space=mpc_config, meta=META,
                     previous=far)
     assert off.ego_trajectory.candidate_id == scene.route_candidate_id
     on_route = translate(wire(ego=scene.route_candidate_id, attention=[], trajectories={},
-                              accel=3, steer=2), scene=scene, mpc_config=mpc_config, meta=META)
+                              accel=3, steer=2), scene=scene, space=mpc_config, meta=META)
     moved = on_route.model_copy(update={"ego_trajectory": on_route.ego_trajectory.model_copy(
         update={"control_points": tuple((x, y - 0.5) for x, y in
                                         on_route.ego_trajectory.control_points)})})
-    again = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META,
+    again = translate(_emergency_wire(), scene=scene, space=mpc_config, meta=META,
                       previous=moved)  # an older route-following curve: the fresh one wins
     assert flat(again.ego_trajectory.control_points) == pytest.approx(flat(route.control_points))
 
@@ -156,8 +163,8 @@ def _deviation_then_emergency(scene, mpc_config):
     other = next(i for i, c in enumerate(scene.ego_candidates)
                  if float(np.max(np.hypot(*(c.sample(50) - route.sample(50)).T))) > 5.0)
     before = translate(wire(ego=other, attention=[], trajectories={}, accel=3, steer=2),
-                       scene=scene, mpc_config=mpc_config, meta=META)
-    kept = translate(_emergency_wire(), scene=scene, mpc_config=mpc_config, meta=META,
+                       scene=scene, space=mpc_config, meta=META)
+    kept = translate(_emergency_wire(), scene=scene, space=mpc_config, meta=META,
                      previous=before)
     return route, other, before, kept
 
@@ -175,7 +182,7 @@ def test_emergency_does_not_keep_a_curve_along_a_candidate_leaving_the_route(sce
     route, other, before, kept = _deviation_then_emergency(scene, mpc_config)
     assert kept.ego_trajectory == before.ego_trajectory  # a deviation under way: kept
     leaving = replace(scene, leaving_ids=frozenset({other}))
-    dropped = translate(_emergency_wire(), scene=leaving, mpc_config=mpc_config, meta=META,
+    dropped = translate(_emergency_wire(), scene=leaving, space=mpc_config, meta=META,
                         previous=before)
     assert dropped.ego_trajectory.candidate_id == scene.route_candidate_id
     assert flat(dropped.ego_trajectory.control_points) == \

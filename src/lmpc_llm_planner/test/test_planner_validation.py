@@ -15,7 +15,7 @@ from lmpc_llm_planner.validation import parse_decision
 def request_(left_turn_map, obs_factory, oncoming_factory, planner_config, mpc_config):
     obs = obs_factory(left_turn_map, agents=[oncoming_factory("car1", y_m=30.0, v_mps=10.0)])
     scene = build_scene(obs, lookahead_m=60.0, max_agents=20)
-    return build_request(scene, config=planner_config, mpc_config=mpc_config)
+    return build_request(scene, config=planner_config, space=mpc_config)
 
 
 def good(request_) -> dict:

@@ -19,7 +19,7 @@ from lmpc_llm_planner.scene import build_scene
 
 def _request(obs, planner_config, mpc_config, mode):
     scene = build_scene(obs, lookahead_m=60.0, max_agents=20)
-    return build_request(scene, config=planner_config, mpc_config=mpc_config, mode=mode)
+    return build_request(scene, config=planner_config, space=mpc_config, mode=mode)
 
 
 def test_brakes_hard_only_in_an_emergency_under_the_commit_ttc(road, planner_config,

@@ -80,9 +80,14 @@ def closeness(ego: EgoState, agent: Agent) -> Closeness:
 
 
 class _Near(Protocol):
-    distance_m: float
-    gap_m: float
-    closing_speed_mps: float
+    @property
+    def distance_m(self) -> float: ...
+
+    @property
+    def gap_m(self) -> float: ...
+
+    @property
+    def closing_speed_mps(self) -> float: ...
 
 
 def must_attend(c: _Near, *, ego_v_mps: float, agent_v_mps: float, ttc_s: float,

@@ -1,21 +1,33 @@
 """The MPC's one validated configuration (STYLE.md 4), loaded once from YAML.
 
-:class:`MpcConfig` holds the horizon, the solver choice, the weight pool the
-planner picks levels from, the action intervals whose midpoints are the bias
-``A_hat``, and the safety-distance and freshness parameters. The planner imports
-this module to know which levels and intervals exist; it never sends numbers.
+:class:`MpcConfig` holds the horizon, the solver choice, the safety-distance and
+freshness parameters, and the decision space (``lmpc_msgs_py.vocabulary``: the
+action intervals whose midpoints are the bias ``A_hat`` and the weight pool), read
+from the file ``decision_space_file`` names. The planner loads the same space from
+``lmpc_msgs_py.vocabulary`` (not from this module); a Decision carries the space's
+hash and :class:`~lmpc_mpc.controller.MpcController` refuses one from another space.
 """
 from __future__ import annotations
 
-from functools import cached_property
 from pathlib import Path
-from typing import Generic, Literal, TypeVar
+from typing import Literal
 
 import os
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from lmpc_msgs_py.messages import WeightLevels
+from lmpc_msgs_py.vocabulary import (  # noqa: F401  (re-exported: their old home)
+    ActionWeights,
+    DecisionSpace,
+    DecisionSpaceError,
+    LevelSet,
+    ResolvedWeights,
+    SafetyWeights,
+    SmoothnessWeights,
+    TrackingWeights,
+    WeightPool,
+    load_decision_space,
+)
 from lmpc_msgs_py.yamlfile import field_path, first_field_error, read_mapping
 
 DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent / "config" / "mpc.yaml"
@@ -26,112 +38,12 @@ solver this way without a config file of their own)."""
 _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
+_SPACE_KEYS = ("weight_pool", "accel_intervals_mps2", "steer_intervals_rad")
+"""Keys of the decision space (before issue 15 they were in the MPC config)."""
+
+
 class MpcConfigError(ValueError):
     """The MPC configuration file is missing, unreadable or invalid (names the field)."""
-
-
-class TrackingWeights(BaseModel):
-    """Diagonal ``W_x``, ``W_v``, ``W_theta`` of the tracking cost ``C_trk``."""
-
-    model_config = _STRICT
-    w_pos: float = Field(ge=0.0)
-    """Weight on the squared x and y position error to the reference [1/m^2]."""
-    w_v: float = Field(ge=0.0)
-    """Weight on the squared speed error [1/(m/s)^2]."""
-    w_yaw: float = Field(ge=0.0)
-    """Weight on the squared (wrapped) yaw error [1/rad^2]."""
-    w_steer: float = Field(ge=0.0)
-    """Weight on the squared error to the reference's curvature steer angle [1/rad^2]."""
-
-
-class ActionWeights(BaseModel):
-    """Diagonal ``W_s`` of ``(A - A_hat)^T W_s (A - A_hat)``."""
-
-    model_config = _STRICT
-    w_accel: float = Field(ge=0.0)
-    """Weight on the squared distance of the acceleration to its bias [1/(m/s^2)^2]."""
-    w_steer: float = Field(ge=0.0)
-    """Weight on the squared distance of the steer angle to its bias [1/rad^2]."""
-
-
-class SmoothnessWeights(BaseModel):
-    """Diagonal ``W_g`` (first difference) and ``W_l`` (second difference) of ``A``."""
-
-    model_config = _STRICT
-    w_g_accel: float = Field(ge=0.0)
-    """Weight on the squared step-to-step change of the acceleration."""
-    w_g_steer: float = Field(ge=0.0)
-    """Weight on the squared step-to-step change of the steer angle."""
-    w_l_accel: float = Field(ge=0.0)
-    """Weight on the squared second difference of the acceleration."""
-    w_l_steer: float = Field(ge=0.0)
-    """Weight on the squared second difference of the steer angle."""
-
-
-class SafetyWeights(BaseModel):
-    """Scalar ``w_saf`` of ``C_saf = w_saf sum max(0, d_hat - d)^2``."""
-
-    model_config = _STRICT
-    w_saf: float = Field(ge=0.0)
-    """Weight on the squared shortfall of the distance to each attended agent [1/m^2]."""
-
-
-W = TypeVar("W", bound=BaseModel)
-
-
-class LevelSet(BaseModel, Generic[W]):
-    """The three levels of one weight group."""
-
-    model_config = _STRICT
-    low: W
-    """Weights when the planner asks for less of this term."""
-    normal: W
-    """Weights of the baseline and of a decision that leaves the group alone."""
-    high: W
-    """Weights when the planner asks for more of this term."""
-
-    def at(self, level: Literal["low", "normal", "high"]) -> W:
-        """The weights of ``level``."""
-        return getattr(self, level)
-
-
-class WeightPool(BaseModel):
-    """The four groups of weights the planner chooses levels from (paper stage 3)."""
-
-    model_config = _STRICT
-    tracking: LevelSet[TrackingWeights]
-    """Tracking group: position, speed, yaw / steer errors."""
-    action: LevelSet[ActionWeights]
-    """Action group: pull of the control towards the bias ``A_hat``."""
-    smoothness: LevelSet[SmoothnessWeights]
-    """Smoothness group: first and second differences of the control."""
-    safety: LevelSet[SafetyWeights]
-    """Safety group: one-sided distance penalty to attended agents."""
-
-
-class ResolvedWeights(BaseModel):
-    """The numbers of one choice of levels (what the solver receives as parameters)."""
-
-    model_config = _STRICT
-    tracking: TrackingWeights
-    action: ActionWeights
-    smoothness: SmoothnessWeights
-    safety: SafetyWeights
-
-
-Interval = tuple[float, float]
-
-
-def _check_intervals(name: str, intervals: tuple[Interval, ...]) -> None:
-    if len(intervals) < 2:
-        raise ValueError(f"{name}: needs at least 2 intervals, got {len(intervals)}")
-    for i, (lo, hi) in enumerate(intervals):
-        if not lo < hi:
-            raise ValueError(f"{name}[{i}]: lower bound {lo} must be below upper bound {hi}")
-        if i and lo < intervals[i - 1][1] - 1e-9:
-            raise ValueError(f"{name}[{i}]: intervals must be sorted and not overlap")
-    if not any(lo <= 0.0 <= hi for lo, hi in intervals):
-        raise ValueError(f"{name}: no interval contains 0 (a neutral interval is required)")
 
 
 class MpcConfig(BaseModel):
@@ -177,12 +89,13 @@ class MpcConfig(BaseModel):
     max_iterations: int = Field(60, ge=1, le=10000)
     """Iteration cap of the NLP solver per solve; for ``sqp_rti`` the QP solver's
     iteration cap per Gauss-Newton step (a QP that needs more is a failed solve)."""
-    weight_pool: WeightPool
-    """The levels of the four weight groups (the planner picks names, never numbers)."""
-    accel_intervals_mps2: tuple[Interval, ...]
-    """Acceleration intervals of the action guidance, sorted; midpoints are the bias [m/s^2]."""
-    steer_intervals_rad: tuple[Interval, ...]
-    """Steer-angle intervals of the action guidance, sorted; midpoints are the bias [rad]."""
+    decision_space_file: str = ""
+    """The decision-space YAML (intervals and weight pool, ``lmpc_msgs_py.vocabulary``);
+    '' = the packaged ``lmpc_msgs_py/config/decision_space.yaml``; a relative path is
+    taken from the MPC config's directory. The planner must load the same file."""
+    decision_space: DecisionSpace
+    """The space itself, loaded from ``decision_space_file`` by :func:`load_mpc_config`
+    (not written in the MPC config: the intervals and levels have one home)."""
     lateral_weight_factor: float = Field(10.0, ge=1.0, le=1000.0)
     """The lateral position error to the reference weighs this many times W_x."""
     reference_accel_mps2: float = Field(1.5, gt=0.0, le=10.0)
@@ -233,8 +146,6 @@ class MpcConfig(BaseModel):
 
     @model_validator(mode="after")
     def _check(self) -> "MpcConfig":
-        _check_intervals("accel_intervals_mps2", self.accel_intervals_mps2)
-        _check_intervals("steer_intervals_rad", self.steer_intervals_rad)
         if not self.agent_slot_sizes or list(self.agent_slot_sizes) != sorted(
             self.agent_slot_sizes
         ):
@@ -245,51 +156,6 @@ class MpcConfig(BaseModel):
                 f"max_agents ({self.max_agents})"
             )
         return self
-
-    # -- helpers -------------------------------------------------------------------------
-    @cached_property
-    def neutral_accel_index(self) -> int:
-        """Index of the acceleration interval that contains 0."""
-        return _neutral(self.accel_intervals_mps2)
-
-    @cached_property
-    def neutral_steer_index(self) -> int:
-        """Index of the steer interval that contains 0."""
-        return _neutral(self.steer_intervals_rad)
-
-    def bias_for(self, accel_index: int, steer_index: int) -> tuple[float, float]:
-        """Bias ``A_hat = (accel_mps2, steer_rad)``: midpoints of the chosen intervals.
-
-        Raises :class:`IndexError` naming the list when an index is out of range.
-        """
-        if not 0 <= accel_index < len(self.accel_intervals_mps2):
-            raise IndexError(
-                f"accel_index {accel_index} out of range 0..{len(self.accel_intervals_mps2) - 1}"
-            )
-        if not 0 <= steer_index < len(self.steer_intervals_rad):
-            raise IndexError(
-                f"steer_index {steer_index} out of range 0..{len(self.steer_intervals_rad) - 1}"
-            )
-        a_lo, a_hi = self.accel_intervals_mps2[accel_index]
-        s_lo, s_hi = self.steer_intervals_rad[steer_index]
-        return (0.5 * (a_lo + a_hi), 0.5 * (s_lo + s_hi))
-
-    def weights_for(self, levels: WeightLevels | None = None) -> ResolvedWeights:
-        """The numbers of the chosen levels (``None``: all "normal", the baseline)."""
-        lv = levels if levels is not None else WeightLevels()
-        pool = self.weight_pool
-        return ResolvedWeights(
-            tracking=pool.tracking.at(lv.tracking),
-            action=pool.action.at(lv.action),
-            smoothness=pool.smoothness.at(lv.smoothness),
-            safety=pool.safety.at(lv.safety),
-        )
-
-
-def _neutral(intervals: tuple[Interval, ...]) -> int:
-    # The interval whose midpoint is closest to 0 among those containing 0.
-    containing = [i for i, (lo, hi) in enumerate(intervals) if lo <= 0.0 <= hi]
-    return min(containing, key=lambda i: abs(sum(intervals[i])))
 
 
 def load_mpc_config(path: str | Path | None = None) -> MpcConfig:
@@ -310,6 +176,17 @@ def load_mpc_config(path: str | Path | None = None) -> MpcConfig:
                 raise MpcConfigError(
                     f"{SOLVER_ENV}={override!r}: expected a solver name or sqp_rti:K (K >= 1)")
             data["rti_iterations"] = int(steps)
+    if "decision_space" in data or any(k in data for k in _SPACE_KEYS):
+        raise MpcConfigError(
+            f"MPC config {file}: the intervals and the weight pool are not set here but in "
+            "the decision-space file (field 'decision_space_file', lmpc_msgs_py.vocabulary)")
+    space_file = str(data.get("decision_space_file") or "")
+    if space_file and not Path(space_file).is_absolute():
+        space_file = str(file.parent / space_file)
+    try:
+        data = {**data, "decision_space": load_decision_space(space_file or None)}
+    except DecisionSpaceError as exc:
+        raise MpcConfigError(f"MPC config {file}: field 'decision_space_file': {exc}") from None
     try:
         return MpcConfig.model_validate(data)
     except ValidationError as exc:

@@ -19,13 +19,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Optional, Sequence
+from typing import Mapping, Optional, Sequence
 
 import numpy as np
 
-from lmpc_msgs_py.messages import Agent, Control, Decision, EgoState, PosePoint
+from lmpc_msgs_py.messages import Agent, Control, ControlMode, Decision, EgoState, PosePoint
 from lmpc_msgs_py.observation import Observation
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
+from lmpc_msgs_py.vocabulary import space_mismatch
 from lmpc_mpc.closeness import closeness, must_attend
 from lmpc_mpc.config import MpcConfig
 from lmpc_mpc.mirrors import OWN_SUFFIX
@@ -110,6 +111,9 @@ class ControllerStats:
     """Agent-steps an agent was re-attended with the MPC's own forecast (stale check)."""
     go_refused: int = 0
     """Steps on which a decision's "go" bias was refused (the MPC's crossing rule yields)."""
+    refused_decisions: int = 0
+    """Decisions refused on arrival: made in another decision space (their ``space_hash``
+    is not this MPC's) or with an interval index outside this space."""
 
 
 _LEAD_IN_OFF_RAD = math.radians(60.0)
@@ -213,7 +217,7 @@ class MpcController:
         self._counts = {"steps": 0, "solver_failures": 0, "fallbacks": 0, "shifted": 0,
                         "brakes": 0, "stale_inputs": 0, "floor_additions": 0,
                         "hedged": 0, "route_overrides": 0, "stale_steps": 0,
-                        "stale_agent_steps": 0, "go_refused": 0}
+                        "stale_agent_steps": 0, "go_refused": 0, "refused_decisions": 0}
         self._mode = "idle"
         self._solved_decision_id: Optional[str] = None
         self._ego_v_mps = 0.0
@@ -262,13 +266,31 @@ class MpcController:
         """Indices of this step's obstacles that stay beside the path (``_lead_limits``)."""
 
     # -- decisions -----------------------------------------------------------------------
-    def on_decision(self, decision: Decision) -> None:
-        """Store a decision; it takes effect per the timing rule (see module doc)."""
+    def on_decision(self, decision: Decision) -> Optional[str]:
+        """Store a decision; it takes effect per the timing rule (see module doc).
+
+        Returns why it was refused (one line naming both decision spaces, counted as
+        ``refused_decisions``), or None when it was stored (or already known): a decision
+        made in another decision space (``space_hash``) or with an interval index this
+        space does not have never steers; the MPC keeps its baseline behaviour."""
+        space = self.config.decision_space
+        refusal = space_mismatch(space, decision.space_hash)
+        if refusal is None and not (
+                decision.accel_interval < len(space.accel_intervals_mps2)
+                and decision.steer_interval < len(space.steer_intervals_rad)):
+            refusal = (f"decision {decision.decision_id}: interval index out of range "
+                       f"(accel {decision.accel_interval} of "
+                       f"{len(space.accel_intervals_mps2)}, steer {decision.steer_interval} "
+                       f"of {len(space.steer_intervals_rad)}) in {space.describe()}")
+        if refusal is not None:
+            self._counts["refused_decisions"] += 1
+            return refusal
         if any(d.decision_id == decision.decision_id for d in self._decisions):
-            return
+            return None
         self._decisions.append(decision)
         self._decisions.sort(key=lambda d: (d.stamp_s, d.seq))
         del self._decisions[:-_DECISION_MEMORY]
+        return None
 
     def effective_from_s(self, decision: Decision) -> float:
         """Sim time from which ``decision`` may steer (the one timing rule)."""
@@ -334,7 +356,7 @@ class MpcController:
             self.solver.reconverge()  # new weights / bias / attention: a jump, not a drift
             self._solved_decision_id = dec_id
         result = self.solver.solve(problem)
-        mode = "decision" if decision is not None else "baseline"
+        mode: ControlMode = "decision" if decision is not None else "baseline"
         if result.success:
             u = result.u0
             if all(math.isfinite(v) for v in u):
@@ -388,7 +410,7 @@ class MpcController:
             path = cand.sample(200)
             ref_id = None
         if decision is not None:
-            weights = cfg.weights_for(decision.weights)
+            weights = cfg.decision_space.weights_for(decision.weights)
             bias = self._decision_bias(decision)
             if leave is not None:
                 bias = (bias[0], 0.0)  # its steer bias belongs to the manoeuvre not taken
@@ -396,13 +418,13 @@ class MpcController:
             # bias (below the neutral interval) brakes the reference to a stop at that
             # rate, a speeding-up bias raises its acceleration. Otherwise the tracking
             # term would fight the bias (our reading; the paper leaves it open).
-            lo, hi = cfg.accel_intervals_mps2[cfg.neutral_accel_index]
+            lo, hi = cfg.decision_space.neutral_accel_band
             if bias[0] < lo:
                 ref_v_cap, ref_dec = 0.0, max(-bias[0], 0.5)
             elif bias[0] > hi:
                 ref_acc = max(bias[0], ref_acc)
         else:
-            weights = cfg.weights_for(None)
+            weights = cfg.decision_space.weights_for(None)
             bias = (0.0, 0.0)
         path = _lead_in(path, ego.x_m, ego.y_m, ego.yaw_rad)
         v_limit = veh.max_speed_mps
@@ -471,7 +493,7 @@ class MpcController:
             obstacles = [replace(ob, beside=True) if i in self._beside else ob
                          for i, ob in enumerate(obstacles)]
         refused: tuple[str, ...] = ()
-        neutral_hi = cfg.accel_intervals_mps2[cfg.neutral_accel_index][1]
+        neutral_hi = cfg.decision_space.neutral_accel_band[1]
         held = self._held_by(ego.v_mps, ref_acc) if check and bias[0] > neutral_hi else ()
         if check and bias[0] > neutral_hi and (self._yielded or held):
             # the decision says go, the MPC's own crossing rule (on the current state)
@@ -514,7 +536,7 @@ class MpcController:
         the reference reaches its top speed, then 0. Asking for -5 m/s^2 for all 3 s
         from 3 m/s is infeasible (v >= 0): the quadratic cost then made the MPC spread
         about -1 m/s^2 over the horizon instead of braking as asked."""
-        lo, hi = self.config.accel_intervals_mps2[self.config.neutral_accel_index]
+        lo, hi = self.config.decision_space.neutral_accel_band
         if lo <= bias_mps2 <= hi:
             return None
         v_next = ref_v_mps[1:]
@@ -634,11 +656,13 @@ class MpcController:
         return tuple(oid for oid, lim in self._leaders if lim < free)
 
     def _decision_bias(self, decision: Decision) -> tuple[float, float]:
+        """``A_hat``: the midpoints of the decision's intervals (this MPC's decision space,
+        the one place indices become numbers), clipped to the vehicle's limits."""
         veh = self.vehicle
-        return (float(np.clip(decision.accel_bias_mps2, -veh.max_decel_mps2,
-                              veh.max_accel_mps2)),
-                float(np.clip(decision.steer_bias_rad, -veh.max_steer_rad,
-                              veh.max_steer_rad)))
+        accel, steer = self.config.decision_space.bias_for(decision.accel_interval,
+                                                           decision.steer_interval)
+        return (float(np.clip(accel, -veh.max_decel_mps2, veh.max_accel_mps2)),
+                float(np.clip(steer, -veh.max_steer_rad, veh.max_steer_rad)))
 
     def _route_leave(self, obs: Observation, decision: Decision) -> Optional[RouteLeave]:
         """Where the decision's candidate leaves the route (``route_guard``), else None;
@@ -647,7 +671,7 @@ class MpcController:
         return None if self._curve is None else self._curve[2]
 
     def _reattend_stale(self, obs: Observation, line: _Polyline, in_problem: Sequence[Agent],
-                        preds: dict[str, object], obstacles: list[Obstacle],
+                        preds: Mapping[str, object], obstacles: list[Obstacle],
                         speeds: list[float]) -> tuple[str, ...]:
         """The stale-decision check's attention part (``lmpc_mpc.stale``): every agent in
         sensing range whose own forecast enters the ego's path corridor within reach in
@@ -796,7 +820,7 @@ class MpcController:
         return self._emit(obs, (-self.vehicle.safe_brake_mps2, 0.0), "brake", status,
                           solve_time_s, decision_id, None, (), None)
 
-    def _emit(self, obs: Observation, u: tuple[float, float], mode: str, status: str,
+    def _emit(self, obs: Observation, u: tuple[float, float], mode: ControlMode, status: str,
               solve_time_s: float, decision_id: Optional[str], ref_id: Optional[int],
               attended: tuple[str, ...], predicted: Optional[np.ndarray]) -> Control:
         veh = self.vehicle
@@ -818,6 +842,6 @@ class MpcController:
         ctl = Control(stamp_s=obs.ego.stamp_s, seq=self._seq, accel_mps2=a, steer_rad=d,
                       mode=mode, solver_status=status[:200], solve_time_ms=solve_ms,
                       decision_id=decision_id, reference_id=ref_id, attended=attended,
-                      predicted=pts, stale=self.stale.labels())  # type: ignore[arg-type]
+                      predicted=pts, stale=self.stale.labels())
         self._seq += 1
         return ctl

@@ -9,16 +9,79 @@ terms stay stage-local (FATROP's stage-wise structure).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import casadi as ca
 
 from lmpc_msgs_py.vehicle import VehicleParams
+from lmpc_msgs_py.vocabulary import ResolvedWeights
 
 NX = 8
 NU = 2
 NREF = 6  # per stage: x, y, yaw, v, curvature of the reference; accel bias A_hat_a,k
 NOBS = 6
-N_W = 14  # pos, v, yaw, steer_trk, s_a, s_d, g_a, g_d, l_a, l_d, saf, (unused), bias_d, lat
+
+
+class CostParams(NamedTuple):
+    """The problem-wide part of the parameter vector (after ``x0``), by name.
+
+    Both solvers (``solver.MpcSolver``'s NLP, ``rti.RtiQp``) read their weights from
+    :meth:`symbols`, and ``MpcSolver`` fills the numbers with :meth:`of` and :meth:`pack`:
+    the order of the slots is this class's field order and nothing else. Each field is a
+    float when packed and a CasADi symbol inside a problem. The per-stage parameters
+    (reference, the per-stage acceleration bias, obstacles) follow in the vector."""
+
+    w_pos: Any
+    """W_x: squared position error to the reference (lateral: x ``lateral_factor``)."""
+    w_v: Any
+    """W_v: squared speed error."""
+    w_yaw: Any
+    """W_theta: yaw error, ``2 (1 - cos)``."""
+    w_steer_ref: Any
+    """Squared error of the steer angle to the reference's curvature steer angle."""
+    w_bias_accel: Any
+    """W_s, acceleration: squared distance to the (per-stage) acceleration bias."""
+    w_bias_steer: Any
+    """W_s, steer: squared distance to ``bias_steer_rad``."""
+    w_g_accel: Any
+    """W_g, acceleration: squared first difference."""
+    w_g_steer: Any
+    """W_g, steer: squared first difference."""
+    w_l_accel: Any
+    """W_l, acceleration: squared second difference."""
+    w_l_steer: Any
+    """W_l, steer: squared second difference."""
+    w_saf: Any
+    """w_saf: squared shortfall of the distance to each attended agent."""
+    bias_steer_rad: Any
+    """The steer bias A_hat_delta [rad]."""
+    lateral_factor: Any
+    """The lateral position error weighs this many times ``w_pos``."""
+
+    @classmethod
+    def of(cls, weights: ResolvedWeights, *, bias_steer_rad: float,
+           lateral_factor: float) -> "CostParams":
+        """The numbers of one problem: resolved weights, steer bias, lateral factor."""
+        tr, ac, sm = weights.tracking, weights.action, weights.smoothness
+        return cls(w_pos=tr.w_pos, w_v=tr.w_v, w_yaw=tr.w_yaw, w_steer_ref=tr.w_steer,
+                   w_bias_accel=ac.w_accel, w_bias_steer=ac.w_steer,
+                   w_g_accel=sm.w_g_accel, w_g_steer=sm.w_g_steer,
+                   w_l_accel=sm.w_l_accel, w_l_steer=sm.w_l_steer,
+                   w_saf=weights.safety.w_saf, bias_steer_rad=bias_steer_rad,
+                   lateral_factor=lateral_factor)
+
+    @classmethod
+    def symbols(cls, w: ca.SX) -> "CostParams":
+        """The slots of the symbol vector ``w`` (``StageSymbols.w``), by name."""
+        return cls(*(w[i] for i in range(N_W)))
+
+    def pack(self) -> tuple[float, ...]:
+        """The numbers in slot order (what goes into the parameter vector)."""
+        return tuple(float(v) for v in self)
+
+
+N_W = len(CostParams._fields)
+"""Length of the problem-wide weight block of the parameter vector."""
 
 
 @dataclass(frozen=True)

@@ -69,6 +69,8 @@ class MpcNode(LmpcNode):
         self._signals: dict[float, SignalStates] = {}
         self._pending: list[tuple[EgoState, float]] = []  # (ego, wall time received)
         self._decision_ids: set[str] = set()
+        self._refusal: Optional[str] = None
+        """Why the last refused decision was refused (diagnostics message), if any."""
         self._last_clock_s: Optional[float] = None
         self._last_clock_wall = time.monotonic()
         self._frozen = False
@@ -93,7 +95,8 @@ class MpcNode(LmpcNode):
         self.create_timer(TICK_S, self._tick, clock=steady)
         self.create_timer(1.0, self._diagnostics, clock=steady)
         self.get_logger().info(
-            f"mpc_controller up: solver {self.config.solver}, horizon {self.config.horizon}; "
+            f"mpc_controller up: solver {self.config.solver}, horizon {self.config.horizon}, "
+            f"decision space {self.config.decision_space.describe()}; "
             f"waiting for {self.topic(topics.MAP)} and {self.topic(topics.EGO_STATE)} "
             "(no control is published before both arrive)")
 
@@ -123,8 +126,17 @@ class MpcNode(LmpcNode):
         self._tick()
 
     def _on_decision(self, msg: Decision) -> None:
-        self._decision_ids.add(msg.decision_id)
-        self.controller.on_decision(msg)
+        self._decision_ids.add(msg.decision_id)  # refused or not, the barrier saw it
+        refusal = self.controller.on_decision(msg)
+        if refusal is not None:
+            # another decision space: the graph is miswired, say so loudly (throttled);
+            # counted as a drop on the topic and as refused_decisions
+            topic = self.topic(topics.DECISION)
+            self.counters["dropped_messages"] += 1
+            self.counters[f"dropped:{topic}"] += 1
+            self._refusal = refusal
+            self.log_event("decision_space", f"REFUSED decision {msg.decision_id} on {topic}: "
+                           f"{refusal}", level="error")
         self._tick()
 
     @staticmethod
@@ -192,7 +204,7 @@ class MpcNode(LmpcNode):
                           now_s)
 
     @staticmethod
-    def _newest(store: dict, stamp_s: float):  # type: ignore[no-untyped-def]
+    def _newest(store: dict, stamp_s: float):
         older = [k for k in store if k <= stamp_s]
         return store[max(older)] if older else None
 
@@ -236,7 +248,7 @@ class MpcNode(LmpcNode):
             pub.publish(msg)
         self._publish_markers(obs, stamp)
 
-    def _publish_markers(self, obs: Observation, stamp) -> None:  # type: ignore[no-untyped-def]
+    def _publish_markers(self, obs: Observation, stamp) -> None:
         """The candidates and the agents' predictions as MarkerArrays (frame ``map``).
         Each array starts with a DELETEALL so lines of agents gone out of view vanish."""
         ctl = self.controller
@@ -259,7 +271,7 @@ class MpcNode(LmpcNode):
             pub.publish(arr)
 
     @staticmethod
-    def _marker(line: MirrorLine, stamp) -> Marker:  # type: ignore[no-untyped-def]
+    def _marker(line: MirrorLine, stamp) -> Marker:
         m = Marker()
         m.header.frame_id = "map"
         m.header.stamp = stamp
@@ -286,6 +298,8 @@ class MpcNode(LmpcNode):
             message = f"waiting for {self.topic(topics.EGO_STATE)}"
         else:
             message = f"mode {st.mode}"
+        if self._refusal is not None:
+            level, message = 2, f"decisions refused: {self._refusal}"
         self.publish_diagnostics(level, message,
                                  {"mode": st.mode, "steps": st.steps,
                                   "solver_failures": st.solver_failures,
@@ -297,6 +311,8 @@ class MpcNode(LmpcNode):
                                   "stale_steps": st.stale_steps,
                                   "stale_agent_steps": st.stale_agent_steps,
                                   "go_refused": st.go_refused,
+                                  "refused_decisions": st.refused_decisions,
+                                  "decision_space": self.config.decision_space.describe(),
                                   "over_budget": st.over_budget})
 
 

@@ -172,7 +172,7 @@ class _Polyline:
         rows = np.arange(len(p))
         return self.cum_m[i] + t[rows, i] * seg[i], np.sqrt(dist2[rows, i])
 
-    def at(self, s_m: np.ndarray | float) -> np.ndarray:
+    def at(self, s_m: np.ndarray | float | Sequence[float]) -> np.ndarray:
         """Points at arc lengths ``s_m``; beyond the ends the line goes on straight."""
         s = np.atleast_1d(np.asarray(s_m, dtype=float))
         if len(self.pts) == 1:

@@ -31,7 +31,8 @@ import numpy as np
 
 from lmpc_msgs_py.vehicle import VehicleParams
 from lmpc_mpc.model import (
-    BIG, N_W, NOBS, NREF, NU, NX, bicycle_function, box_bounds, midpoint_step, stage_symbols)
+    BIG, NOBS, NREF, NU, NX, CostParams, bicycle_function, box_bounds, midpoint_step,
+    stage_symbols)
 _SLACK_REG = 1e-4
 """Weight on every slack squared (also unused ones): keeps the QP Hessian positive
 definite in the slacks, so an unused slot's slack is exactly 0 and not free."""
@@ -111,8 +112,7 @@ class RtiQp:
         f = bicycle_function(veh)
         sym = stage_symbols(n, m, self.nu)
         p_x0, p_w, p_st, xs, us = sym.x0, sym.w, sym.stage_p, sym.xs, sym.us
-        (w_pos, w_v, w_yaw, w_str, s_a, s_d, g_a, g_d, l_a, l_d, w_saf, _, b_d, w_lat) = \
-            [p_w[i] for i in range(N_W)]
+        c = CostParams.symbols(p_w)  # the weight slots, by name
         rate = veh.max_steer_rate_radps * dt
         x_lb, x_ub, u_lb, u_ub = box_bounds(veh)
         u_lb, u_ub = u_lb + [0.0] * m, u_ub + [BIG] * m  # the safety slacks are >= 0
@@ -136,11 +136,11 @@ class RtiQp:
                 pk = p_st[k]
                 cy, sy = ca.cos(pk[2]), ca.sin(pk[2])
                 ex, ey = x[0] - pk[0], x[1] - pk[1]
-                res += [sq(w_pos) * (cy * ex + sy * ey),
-                        sq(w_pos * w_lat) * (-sy * ex + cy * ey),
-                        sq(w_v) * (x[3] - pk[3]),
+                res += [sq(c.w_pos) * (cy * ex + sy * ey),
+                        sq(c.w_pos * c.lateral_factor) * (-sy * ex + cy * ey),
+                        sq(c.w_v) * (x[3] - pk[3]),
                         # 2 (1 - cos e) = (2 sin(e / 2))^2: the same yaw cost as a square
-                        2.0 * sq(w_yaw) * ca.sin(0.5 * (x[2] - pk[2]))]
+                        2.0 * sq(c.w_yaw) * ca.sin(0.5 * (x[2] - pk[2]))]
             if k == n:
                 continue
             u = us[k]
@@ -164,13 +164,15 @@ class RtiQp:
                 g.append(u[NU + i] - on * short)
                 lbg.append(0.0)
                 ubg.append(BIG)
-                res.append(sq(w_saf * on + _SLACK_REG) * u[NU + i])
+                res.append(sq(c.w_saf * on + _SLACK_REG) * u[NU + i])
             kap = pn[4]
             d_ref = ca.atan(veh.wheelbase_m * kap)
-            res += [sq(w_str) * (u[1] - d_ref),
-                    sq(s_a) * (u[0] - p_st[k][5]), sq(s_d) * (u[1] - b_d),
-                    sq(g_a) * (u[0] - x[4]), sq(g_d) * (u[1] - x[5]),
-                    sq(l_a) * (u[0] - 2 * x[4] + x[6]), sq(l_d) * (u[1] - 2 * x[5] + x[7])]
+            res += [sq(c.w_steer_ref) * (u[1] - d_ref),
+                    sq(c.w_bias_accel) * (u[0] - p_st[k][5]),
+                    sq(c.w_bias_steer) * (u[1] - c.bias_steer_rad),
+                    sq(c.w_g_accel) * (u[0] - x[4]), sq(c.w_g_steer) * (u[1] - x[5]),
+                    sq(c.w_l_accel) * (u[0] - 2 * x[4] + x[6]),
+                    sq(c.w_l_steer) * (u[1] - 2 * x[5] + x[7])]
         w = ca.vertcat(*w_vars)
         p = ca.vertcat(p_x0, p_w, *p_st)
         r = ca.vertcat(*res)

@@ -41,15 +41,17 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import casadi as ca
 import numpy as np
 
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
-from lmpc_mpc.config import MpcConfig, ResolvedWeights
+from lmpc_msgs_py.vocabulary import ResolvedWeights
+from lmpc_mpc.config import MpcConfig
 from lmpc_mpc.model import (  # noqa: F401 (NREF, midpoint_step: re-exported)
-    BIG, N_W, NOBS, NREF, NU, NX, bicycle_function, box_bounds, midpoint_step, stage_symbols)
+    BIG, N_W, NOBS, NREF, NU, NX, CostParams, bicycle_function, box_bounds, midpoint_step,
+    stage_symbols)
 from lmpc_mpc import solver_cache
 from lmpc_mpc.rti import RtiQp
 _RELEVANCE_MARGIN_M = 6.0
@@ -156,7 +158,7 @@ def rk4_step(f: ca.Function, s: ca.SX, u: ca.SX, dt_s: float) -> ca.SX:
     return s + dt_s / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
-def simulate_bicycle(x0: Sequence[float], controls: np.ndarray, *, dt_s: float,
+def simulate_bicycle(x0: Sequence[float] | np.ndarray, controls: np.ndarray, *, dt_s: float,
                      vehicle: VehicleParams = DEFAULT_VEHICLE) -> np.ndarray:
     """Roll the same model out in numpy (RK4): (len(controls)+1, 4) states."""
     ratio = vehicle.lr_m / vehicle.wheelbase_m
@@ -227,8 +229,7 @@ class MpcSolver:
         f = bicycle_function(veh)
         sym = stage_symbols(n, n_slots)
         p_x0, p_w, p_st, xs, us = sym.x0, sym.w, sym.stage_p, sym.xs, sym.us
-        (w_pos, w_v, w_yaw, w_str, s_a, s_d, g_a, g_d, l_a, l_d, w_saf, _, b_d, w_lat) = \
-            [p_w[i] for i in range(N_W)]
+        c = CostParams.symbols(p_w)  # the weight slots, by name
         rate = veh.max_steer_rate_radps * dt
         w_vars: list[ca.SX] = []
         g: list[ca.SX] = []
@@ -237,7 +238,7 @@ class MpcSolver:
         lbx: list[float] = []
         ubx: list[float] = []
         x_lb, x_ub, u_lb, u_ub = box_bounds(veh)
-        cost = 0
+        cost: Any = 0  # a CasADi expression after the first term
         # FATROP's stage layout: per stage k the gap-closing rows (x_{k+1} = F(x_k, u_k))
         # first, then the stage's path constraints.
         for k in range(n + 1):
@@ -257,8 +258,8 @@ class MpcSolver:
             else:
                 lbx += x_lb
                 ubx += x_ub
-                cost += self._stage_cost(x, p_st[k], n_slots, w_pos, w_v, w_yaw, w_saf,
-                                         w_lat)
+                cost += self._stage_cost(x, p_st[k], n_slots, c.w_pos, c.w_v, c.w_yaw,
+                                         c.w_saf, c.lateral_factor)
             if k < n:
                 u = us[k]
                 w_vars.append(u)
@@ -274,11 +275,13 @@ class MpcSolver:
                 path_ub.append(rate)
                 kap = p_st[k + 1][4]
                 d_ref = ca.atan(veh.wheelbase_m * kap)
-                cost += w_str * (u[1] - d_ref) ** 2
+                cost += c.w_steer_ref * (u[1] - d_ref) ** 2
                 # the acceleration bias is per stage (p_st[k][5], see MpcProblem)
-                cost += s_a * (u[0] - p_st[k][5]) ** 2 + s_d * (u[1] - b_d) ** 2
-                cost += g_a * (u[0] - x[4]) ** 2 + g_d * (u[1] - x[5]) ** 2
-                cost += l_a * (u[0] - 2 * x[4] + x[6]) ** 2 + l_d * (u[1] - 2 * x[5] + x[7]) ** 2
+                cost += (c.w_bias_accel * (u[0] - p_st[k][5]) ** 2
+                         + c.w_bias_steer * (u[1] - c.bias_steer_rad) ** 2)
+                cost += c.w_g_accel * (u[0] - x[4]) ** 2 + c.w_g_steer * (u[1] - x[5]) ** 2
+                cost += (c.w_l_accel * (u[0] - 2 * x[4] + x[6]) ** 2
+                         + c.w_l_steer * (u[1] - 2 * x[5] + x[7]) ** 2)
             g += path_g
             lbg += path_lb
             ubg += path_ub
@@ -289,7 +292,7 @@ class MpcSolver:
         equality = [bool(lo == hi) for lo, hi in zip(lbg, ubg)]
         budget = self.config.time_budget_s
         if self.solver_name == "fatrop":
-            opts = {
+            opts: dict[str, Any] = {
                 "structure_detection": "manual",
                 "N": n,
                 "nx": [NX] * (n + 1),
@@ -572,12 +575,8 @@ class MpcSolver:
                                                                  d_lim),
                        min(max(prob.u_prev2[0], a_lo), a_hi), min(max(prob.u_prev2[1], -d_lim),
                                                                   d_lim)], dtype=float)
-        w = prob.weights
-        wv = (w.tracking.w_pos, w.tracking.w_v, w.tracking.w_yaw, w.tracking.w_steer,
-              w.action.w_accel, w.action.w_steer,
-              w.smoothness.w_g_accel, w.smoothness.w_g_steer,
-              w.smoothness.w_l_accel, w.smoothness.w_l_steer,
-              w.safety.w_saf, 0.0, prob.bias[1], cfg.lateral_weight_factor)
+        wv = CostParams.of(prob.weights, bias_steer_rad=prob.bias[1],
+                           lateral_factor=cfg.lateral_weight_factor).pack()
         # unwrap the reference yaw next to the current yaw so 1 - cos never sees a jump
         yaw_ref = np.unwrap(np.concatenate([[prob.x0[2]], ref[:, 2]]))[1:]
         packed, n_slots = self._pack(prob, ref, yaw_ref)

@@ -7,7 +7,7 @@ controller need no simulator.
 from __future__ import annotations
 
 import math
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -123,7 +123,7 @@ def roundabout_entry(*, arm_m: float = 100.0, ring_m: float = 60.0,
     y=-1.6, from x=-8-``ring_m``) and goes straight on into ``R1_0``. Ring lanes and
     the junction lanes onto the ring are flagged ``roundabout``."""
     h, b = 1.6, 8.0
-    ring = dict(speed_mps=ring_speed_mps)
+    ring: dict[str, Any] = dict(speed_mps=ring_speed_mps)
     lanes = tuple(ln.model_copy(update={"roundabout": True}) for ln in (
         _lane(":J_0_0", _arc(b, -b, b - h, math.pi, math.pi / 2.0), internal=True,
               successors=[LaneLink(to_lane="R1_0", direction="r")], **ring),

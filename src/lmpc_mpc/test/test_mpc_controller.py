@@ -103,13 +103,13 @@ def test_oncoming_crossing_car_ego_waits(solver: MpcSolver) -> None:
 def _decision(ego_xy, *, stamp_s: float, latency_s: float = 0.0, ttl_s: float = 5.0,
               accel_idx: int = 0, levels: WeightLevels = WeightLevels(action="high")
               ) -> Decision:
-    bias = CFG.bias_for(accel_idx, CFG.neutral_steer_index)
     cps = tuple((ego_xy[0] + d, ego_xy[1]) for d in (0.0, 20.0, 40.0, 60.0))
     return Decision(stamp_s=stamp_s, seq=1, decision_id=f"d{stamp_s}", source="mock",
                     latency_s=latency_s, ttl_s=ttl_s,
                     ego_trajectory=BezierTrajectory(candidate_id=0, control_points=cps),
-                    accel_interval=accel_idx, steer_interval=CFG.neutral_steer_index,
-                    accel_bias_mps2=bias[0], steer_bias_rad=bias[1], weights=levels)
+                    accel_interval=accel_idx,
+                    steer_interval=CFG.decision_space.neutral_steer_index,
+                    weights=levels, space_hash=CFG.decision_space.space_hash)
 
 
 def test_braking_decision_stops_and_holds_then_expires(solver: MpcSolver) -> None:
@@ -180,7 +180,7 @@ def test_braking_bias_is_followed_at_its_rate(solver: MpcSolver) -> None:
                                levels=WeightLevels(action="high")))
     ego = S.ego_state(x_m=10.0, y_m=-4.8, yaw_rad=0.0, v_mps=3.0, stamp_s=0.1, seq=1)
     ctl = ctrl.compute(S.observation(m, ego))
-    want = CFG.bias_for(0, CFG.neutral_steer_index)[0]
+    want = CFG.decision_space.bias_for(0, CFG.decision_space.neutral_steer_index)[0]
     assert ctl.mode == "decision"
     assert ctl.accel_mps2 < 0.8 * want  # at least 80 % of the asked deceleration
 
@@ -260,7 +260,7 @@ def test_safety_floor_attends_a_close_agent_the_decision_left_out(solver: MpcSol
         solver.reset()
         ctrl = MpcController(config, solver=solver)
         keep = _decision((10.0, -4.8), stamp_s=0.0, ttl_s=30.0,
-                         accel_idx=CFG.neutral_accel_index, levels=WeightLevels())
+                         accel_idx=CFG.decision_space.neutral_accel_index, levels=WeightLevels())
         ctrl.on_decision(keep.model_copy(update={"ego_trajectory": BezierTrajectory(
             candidate_id=0, control_points=((10.0, -4.8), (100.0, -4.8), (190.0, -4.8)))}))
         return _run(ctrl, m, (10.0, -4.8, 0.0, 10.0), 70, lambda t: [stopped, away(t)]), ctrl
@@ -296,7 +296,7 @@ def test_decision_curve_is_continued_along_the_lane(solver: MpcSolver) -> None:
     m = S.straight_road()
     ctrl = _ctrl(solver)
     short = _decision((10.0, -4.8), stamp_s=0.0, ttl_s=10.0,
-                      accel_idx=CFG.neutral_accel_index, levels=WeightLevels())
+                      accel_idx=CFG.decision_space.neutral_accel_index, levels=WeightLevels())
     ctrl.on_decision(short.model_copy(update={"ego_trajectory": BezierTrajectory(
         candidate_id=0, control_points=((10.0, -4.8), (20.0, -4.8), (30.0, -4.8)))}))
     ego = S.ego_state(x_m=50.0, y_m=-4.8, yaw_rad=0.2, v_mps=12.0, stamp_s=1.0, seq=10)
@@ -316,7 +316,7 @@ def test_safety_floor_reach_attends_a_car_keeping_pace_in_the_next_lane(
     pacer = S.agent("pacer", x_m=25.0, y_m=-1.6, yaw_rad=0.0, v_mps=10.0, lane_id="E0_1")
     ego = S.ego_state(x_m=50.0, y_m=-4.8, yaw_rad=0.0, v_mps=10.0, stamp_s=1.0, seq=10)
     blind = _decision((50.0, -4.8), stamp_s=0.0, ttl_s=10.0,
-                      accel_idx=CFG.neutral_accel_index, levels=WeightLevels())
+                      accel_idx=CFG.decision_space.neutral_accel_index, levels=WeightLevels())
     for reach_s, attended in ((3.0, True), (0.0, False)):
         solver.reset()
         ctrl = MpcController(CFG.model_copy(update={"safety_floor_reach_s": reach_s}),
@@ -346,7 +346,7 @@ def test_close_agent_is_kept_clear_of_along_the_mpc_forecast_too(
         candidate_id=1, control_points=((50.0, -4.8), (56.0, -4.8), (58.0, -1.6),
                                         (64.0, -1.6)), label="change to the left lane"))
     keep = _decision((10.0, -4.8), stamp_s=0.0, ttl_s=30.0,
-                     accel_idx=CFG.neutral_accel_index, levels=WeightLevels())
+                     accel_idx=CFG.decision_space.neutral_accel_index, levels=WeightLevels())
     keep = keep.model_copy(update={
         "ego_trajectory": BezierTrajectory(candidate_id=0, control_points=(
             (10.0, -4.8), (100.0, -4.8), (190.0, -4.8))),
@@ -391,11 +391,11 @@ def test_a_go_that_became_unsafe_before_taking_effect_is_refused(solver: MpcSolv
     turn = route_candidate(m, S.ego_state(x_m=start[0], y_m=start[1], yaw_rad=start[2]),
                            lookahead_m=CFG.lookahead_m)
     go = _decision(start[:2], stamp_s=0.0, latency_s=2.5, ttl_s=30.0,
-                   accel_idx=len(CFG.accel_intervals_mps2) - 1)
+                   accel_idx=len(CFG.decision_space.accel_intervals_mps2) - 1)
     go = go.model_copy(update={"ego_trajectory": BezierTrajectory(
         candidate_id=turn.candidate_id, control_points=turn.control_points),
         "attention": ()})
-    assert go.accel_bias_mps2 > 1.0
+    assert CFG.decision_space.bias_for(go.accel_interval, go.steer_interval)[0] > 1.0
 
     def oncoming(t: float) -> list[Agent]:
         if t < 1.0:
@@ -442,9 +442,9 @@ def test_a_go_is_refused_while_a_car_ahead_holds_the_reference(solver: MpcSolver
     m = S.straight_road()
     start = (10.0, -4.8, 0.0, 8.0)
     go = _decision(start[:2], stamp_s=0.0, latency_s=2.5, ttl_s=30.0,
-                   accel_idx=len(CFG.accel_intervals_mps2) - 1)
+                   accel_idx=len(CFG.decision_space.accel_intervals_mps2) - 1)
     go = go.model_copy(update={"attention": ()})
-    assert go.accel_bias_mps2 > 1.0
+    assert CFG.decision_space.bias_for(go.accel_interval, go.steer_interval)[0] > 1.0
 
     def stopped(t: float) -> list[Agent]:
         # it stopped there after the planner looked
@@ -522,4 +522,5 @@ def _headway_problem(ob, ref):
     n = CFG.horizon
     return MpcProblem(x0=(0.0, 0.0, 0.0, 10.0), u_prev=(0.0, 0.0), u_prev2=(0.0, 0.0),
                       reference=ref, reference_curvature_1pm=np.zeros(n + 1),
-                      weights=CFG.weights_for(None), bias=(0.0, 0.0), obstacles=(ob,))
+                      weights=CFG.decision_space.weights_for(None), bias=(0.0, 0.0),
+                      obstacles=(ob,))

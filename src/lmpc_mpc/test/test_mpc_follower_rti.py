@@ -39,7 +39,8 @@ def _stopping_problem(obstacles: tuple[Obstacle, ...]) -> MpcProblem:
     ref = _braking_reference(v0_mps=7.2, stop_at_m=8.0, decel_mps2=3.2)
     return MpcProblem(x0=(0.0, 0.0, 0.0, 7.2), u_prev=(0.2, 0.0), u_prev2=(0.2, 0.0),
                       reference=ref, reference_curvature_1pm=np.zeros(N + 1),
-                      weights=CFG.weights_for(None), bias_accel_mps2=np.full(N, -3.0),
+                      weights=CFG.decision_space.weights_for(None),
+                      bias_accel_mps2=np.full(N, -3.0),
                       obstacles=obstacles)
 
 
@@ -90,7 +91,7 @@ def _lane_problem(x: np.ndarray, u_prev: tuple[float, float], u_prev2: tuple[flo
     ref = np.c_[x[0] + 8.0 * T, np.full(N + 1, lane_y_m), np.zeros(N + 1), np.full(N + 1, 8.0)]
     return MpcProblem(x0=tuple(float(v) for v in x), u_prev=u_prev, u_prev2=u_prev2,
                       reference=ref, reference_curvature_1pm=np.zeros(N + 1),
-                      weights=CFG.weights_for(None))
+                      weights=CFG.decision_space.weights_for(None))
 
 
 def _after_a_jump(rti_iterations: int) -> tuple[MpcProblem, MpcSolver]:

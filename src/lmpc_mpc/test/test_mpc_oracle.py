@@ -74,7 +74,7 @@ def _lqr_first_control(z0: np.ndarray, *, n: int, dt_s: float, w_pos: float, w_v
 
 def test_first_control_matches_lqr(solver: MpcSolver) -> None:
     n, dt = CFG.horizon, CFG.dt_s
-    w = CFG.weights_for(None)
+    w = CFG.decision_space.weights_for(None)
     v_ref, v0, behind_m = 10.0, 9.5, 0.4
     u_prev, u_prev2 = 0.3, 0.1
     t = np.arange(n + 1) * dt
@@ -138,7 +138,7 @@ def test_infeasible_start_fails_safely(solver: MpcSolver) -> None:
     ref = np.c_[10.0 + 15.0 * t, np.full(n + 1, -4.8), np.zeros(n + 1), np.full(n + 1, 15.0)]
     prob = MpcProblem(x0=(10.0, -4.8, 0.0, v0), u_prev=(0.0, 0.0), u_prev2=(0.0, 0.0),
                       reference=ref, reference_curvature_1pm=np.zeros(n + 1),
-                      weights=CFG.weights_for(None))
+                      weights=CFG.decision_space.weights_for(None))
     solver.reset()
     res = solver.solve(prob)
     assert not res.success

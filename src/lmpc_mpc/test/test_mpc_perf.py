@@ -81,7 +81,7 @@ def _problem(obstacles: tuple[Obstacle, ...]) -> MpcProblem:
     ref = np.c_[10.0 + 8.0 * t, np.full(n + 1, -4.8), np.zeros(n + 1), np.full(n + 1, 8.0)]
     return MpcProblem(x0=(10.0, -4.8, 0.0, 8.0), u_prev=(0.0, 0.0), u_prev2=(0.0, 0.0),
                       reference=ref, reference_curvature_1pm=np.zeros(n + 1),
-                      weights=CFG.weights_for(None), obstacles=obstacles)
+                      weights=CFG.decision_space.weights_for(None), obstacles=obstacles)
 
 
 def test_far_obstacles_get_no_slot_and_change_nothing(solver) -> None:

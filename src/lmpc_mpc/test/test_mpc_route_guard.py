@@ -57,16 +57,14 @@ def test_a_curve_past_the_end_of_the_route_is_not_leaving() -> None:
     assert leaves_route(m, pts) is not None
 
 
-def _decision(cand, *, turn_bias: float = 0.0) -> Decision:
-    neutral = CFG.bias_for(CFG.neutral_accel_index, CFG.neutral_steer_index)
+def _decision(cand) -> Decision:
     return Decision(stamp_s=0.0, seq=1, decision_id=f"d{cand.candidate_id}", source="mock",
                     latency_s=0.0, ttl_s=20.0,
                     ego_trajectory=BezierTrajectory(candidate_id=cand.candidate_id,
                                                     control_points=cand.control_points),
-                    accel_interval=CFG.neutral_accel_index,
-                    steer_interval=CFG.neutral_steer_index,
-                    accel_bias_mps2=neutral[0], steer_bias_rad=neutral[1] + turn_bias,
-                    weights=WeightLevels())
+                    accel_interval=CFG.decision_space.neutral_accel_index,
+                    steer_interval=CFG.decision_space.neutral_steer_index,
+                    weights=WeightLevels(), space_hash=CFG.decision_space.space_hash)
 
 
 def _drive(solver: MpcSolver, m, decision: Decision, steps: int) -> MpcController:

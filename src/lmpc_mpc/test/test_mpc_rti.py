@@ -34,7 +34,7 @@ def _lead_problem(*, gap_m: float, v0: float, lead_v: float) -> MpcProblem:
     lead = Obstacle("lead", np.c_[gap_m + lead_v * t, np.zeros(n + 1)], 4.5, 1.8)
     return MpcProblem(x0=(0.0, 0.0, 0.0, v0), u_prev=(0.0, 0.0), u_prev2=(0.0, 0.0),
                       reference=ref, reference_curvature_1pm=np.zeros(n + 1),
-                      weights=CFG.weights_for(None), obstacles=(lead,))
+                      weights=CFG.decision_space.weights_for(None), obstacles=(lead,))
 
 
 def test_converged_rti_matches_the_nlp_with_the_safety_term_active(
@@ -81,7 +81,7 @@ def test_infeasible_start_is_a_failure(rti: MpcSolver) -> None:
     ref = np.c_[15.0 * t, np.zeros(n + 1), np.zeros(n + 1), np.full(n + 1, 15.0)]
     prob = MpcProblem(x0=(0.0, 0.0, 0.0, v0), u_prev=(0.0, 0.0), u_prev2=(0.0, 0.0),
                       reference=ref, reference_curvature_1pm=np.zeros(n + 1),
-                      weights=CFG.weights_for(None))
+                      weights=CFG.decision_space.weights_for(None))
     rti.reset()
     res = rti.solve(prob)
     assert not res.success and "QP failed" in res.status

@@ -255,11 +255,23 @@ class WeightLevels(_Part):
     safety: WeightLevel = "normal"
 
 
-class Decision(LmpcMessage):
-    """The LLM's three-stage output after translation (DESIGN §3)."""
+SpaceHash = Annotated[str, Field(pattern=r"^[0-9a-f]{16}$")]
+"""``lmpc_msgs_py.vocabulary.DecisionSpace.space_hash``: 16 lower-case hex characters."""
 
-    SCHEMA: ClassVar[str] = "lmpc/Decision@1"
-    schema_id: Literal["lmpc/Decision@1"] = _schema_field("lmpc/Decision@1")
+
+class Decision(LmpcMessage):
+    """The LLM's three-stage output after translation (DESIGN §3).
+
+    It carries choices, not numbers: interval indices and weight levels of the decision
+    space whose hash is ``space_hash`` (``lmpc_msgs_py.vocabulary``); the MPC turns them
+    into the bias and the weights, and refuses a decision from another space.
+    Version 2 (issue 15) dropped the numeric ``accel_bias_mps2`` / ``steer_bias_rad`` of
+    version 1 and added ``space_hash``: a receiver of one version refuses the other by
+    its schema name. Old decision logs still replay (``lmpc-replay`` answers from the
+    recorded raw LLM text, not from the recorded Decision)."""
+
+    SCHEMA: ClassVar[str] = "lmpc/Decision@2"
+    schema_id: Literal["lmpc/Decision@2"] = _schema_field("lmpc/Decision@2")
     stamp_s: Stamp
     """Sim time of the observation the decision used."""
     seq: Seq
@@ -276,13 +288,13 @@ class Decision(LmpcMessage):
     ego_trajectory: BezierTrajectory
     agent_predictions: tuple[AgentPrediction, ...] = Field(default=(), max_length=200)
     attention: tuple[Ident, ...] = Field(default=(), max_length=200)
-    # stage 2: action guidance
+    # stage 2: action guidance (indices into the space's intervals; bias = midpoints)
     accel_interval: Annotated[int, Field(ge=0, le=31)]
     steer_interval: Annotated[int, Field(ge=0, le=31)]
-    accel_bias_mps2: Accel
-    steer_bias_rad: Steer
-    # stage 3: weight adjustment
+    # stage 3: weight adjustment (levels of the space's weight pool)
     weights: WeightLevels = WeightLevels()
+    space_hash: SpaceHash
+    """Hash of the decision space the indices and levels refer to."""
     reasoning: str = Field(default="", max_length=8000)
 
     @model_validator(mode="after")

@@ -8,7 +8,7 @@ class and the words for what the file is ("MPC config", "scene file", ...).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import yaml
 from pydantic import ValidationError
@@ -35,7 +35,7 @@ def read_mapping(path: Path, *, what: str, error: type[Exception]) -> dict[str, 
     return data
 
 
-def field_path(err: dict[str, Any]) -> str:
+def field_path(err: Mapping[str, Any]) -> str:
     """Dotted location of one pydantic error (``<file>`` for the top level)."""
     return ".".join(str(p) for p in err["loc"]) or "<file>"
 

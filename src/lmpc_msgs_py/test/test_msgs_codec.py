@@ -130,7 +130,7 @@ def test_decision_prediction_must_be_attended() -> None:
     good = Decision(
         stamp_s=2.5, seq=1, decision_id="d1", source="rules", latency_s=0.01,
         ego_trajectory=traj, attention=("car1",), accel_interval=2, steer_interval=2,
-        accel_bias_mps2=-1.0, steer_bias_rad=0.0,
+        space_hash="0123456789abcdef",
     )
     assert decode(encode(good), Decision) == good
     data = json.loads(encode(good))
@@ -148,7 +148,7 @@ def test_every_message_is_frozen_and_strict() -> None:
         assert cfg.get("extra") == "forbid" and cfg.get("frozen") is True
         assert cfg.get("allow_inf_nan") is False
         assert cls.SCHEMA.startswith("lmpc/")
-        assert cls.SCHEMA.endswith("@2" if cls is EpisodeStatus else "@1")
+        assert cls.SCHEMA.endswith("@2" if cls in (EpisodeStatus, Decision) else "@1")
     with pytest.raises(Exception):
         ego().v_mps = 3.0  # type: ignore[misc]
 

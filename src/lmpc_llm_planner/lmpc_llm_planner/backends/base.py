@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal, Mapping, Optional, Protocol, runtime_checkable
 
 from lmpc_msgs_py.messages import Decision
+from lmpc_msgs_py.vocabulary import DecisionSpace
 
 from lmpc_llm_planner.scene import Scene
 from lmpc_llm_planner.schema import Stage
@@ -20,6 +21,21 @@ BackendErrorKind = Literal["timeout", "transport"]
 
 class BackendError(RuntimeError):
     """A backend cannot be created (unknown name, missing model, bad settings)."""
+
+
+class PreviousDecision(Decision):
+    """The last decision as a backend sees it: the Decision plus its acceleration bias
+    resolved in the planner's decision space (the rules reasoner's go / stop hysteresis
+    reads ``accel_bias_mps2``). Never published: the Decision on the wire carries the
+    interval index only, and the MPC resolves it."""
+
+    accel_bias_mps2: float
+    """Midpoint of the decision's acceleration interval [m/s^2]."""
+
+    @classmethod
+    def of(cls, decision: Decision, space: DecisionSpace) -> "PreviousDecision":
+        accel, _ = space.bias_for(decision.accel_interval, decision.steer_interval)
+        return cls.model_validate({**decision.model_dump(), "accel_bias_mps2": float(accel)})
 
 
 @dataclass(frozen=True)
@@ -44,7 +60,7 @@ class DecisionRequest:
     """Chained mode: the validated answers of the earlier stages (stage name -> object)."""
     instruction: Optional[str] = None
     """The user's plain-text instruction (untrusted; it only informs choices)."""
-    previous: Optional[Decision] = None
+    previous: Optional[PreviousDecision] = None
     retry_error: Optional[str] = None
     """On a re-ask: why the previous reply was refused."""
     tokens_estimate: int = 0

@@ -21,7 +21,7 @@ import time
 from typing import Any, Sequence
 
 from lmpc_mpc import synthetic as syn
-from lmpc_mpc.config import load_mpc_config
+from lmpc_msgs_py.vocabulary import load_decision_space
 
 from lmpc_llm_planner.backends.local import LocalBackend
 from lmpc_llm_planner.backends.rules import RulesBackend
@@ -63,7 +63,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
     pcfg = load_planner_config()
-    mcfg = load_mpc_config()
+    space = load_decision_space()
     t_load = time.perf_counter()
     backend = LocalBackend.from_config(LocalConfig(n_threads=args.threads))
     print(json.dumps({"model": str(backend.model_path),
@@ -82,14 +82,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         scene = build_scene(obs, lookahead_m=pcfg.lookahead_m,
                             max_agents=pcfg.max_agents_in_prompt)
         req = build_request(scene, config=pcfg.model_copy(update={"deadline_s": 120.0}),
-                            mpc_config=mcfg, instruction=sc["instruction"])
+                            space=space, instruction=sc["instruction"])
         reply = backend.complete(req)
         if first_req is None:
             first_req, first_text = req, reply.text
         parsed = parse_decision(reply.text or "", request=req) if reply.ok else None
         ref = json.loads(rules.complete(req).text or "{}")
         ans = parsed.wire if parsed and parsed.success else None
-        agree = bool(ans) and (
+        agree = ans is not None and (
             ans.scenario_encoding.ego_trajectory == ref["scenario_encoding"]["ego_trajectory"]
             and ans.action_guidance.accel_interval == ref["action_guidance"]["accel_interval"])
         full_tokens = len(backend.tokenize(backend.chat_prompt(req).text))

@@ -21,7 +21,7 @@ import statistics
 from typing import Any, Sequence
 
 from lmpc_mpc import synthetic as syn
-from lmpc_mpc.config import load_mpc_config
+from lmpc_msgs_py.vocabulary import load_decision_space
 
 from lmpc_llm_planner.backends.base import DecisionRequest
 from lmpc_llm_planner.backends.bench_local import NORTH, percentile, scenes
@@ -36,7 +36,7 @@ from lmpc_llm_planner.validation import parse_decision
 def requests(n: int, deadline_s: float) -> list[DecisionRequest]:
     """The ``bench_local`` scenes as decision requests (the packaged planner settings)."""
     pcfg = load_planner_config().model_copy(update={"deadline_s": deadline_s})
-    mcfg = load_mpc_config()
+    space = load_decision_space()
     out = []
     for sc in scenes(n):
         map_ = syn.four_way_junction(arm_m=100.0, ego_turn=sc["turn"])
@@ -46,7 +46,7 @@ def requests(n: int, deadline_s: float) -> list[DecisionRequest]:
         agents = [syn.agent(a.pop("aid"), **a) for a in [dict(x) for x in sc["agents"]]]
         scene = build_scene(syn.observation(map_, ego, agents), lookahead_m=pcfg.lookahead_m,
                             max_agents=pcfg.max_agents_in_prompt)
-        out.append(build_request(scene, config=pcfg, mpc_config=mcfg,
+        out.append(build_request(scene, config=pcfg, space=space,
                                  instruction=sc["instruction"]))
     return out
 
@@ -77,7 +77,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     texts: dict[str, list[str]] = {"local": [], "openai": []}
     for i, req in enumerate(requests(args.n, max(local_cfg.deadline_s,
                                                  server_cfg.deadline_s))):
-        order = [("local", local), ("openai", remote)]
+        order: list[tuple[str, Any]] = [("local", local), ("openai", remote)]
         for name, backend in order if i % 2 == 0 else order[::-1]:
             reply = backend.complete(req)
             parsed = parse_decision(reply.text or "", request=req) if reply.ok else None
@@ -89,7 +89,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             texts[name].append(reply.text or "")
             print(json.dumps(row), flush=True)
     same = sum(a == b for a, b in zip(texts["local"], texts["openai"]))
-    out = {name: summary(r) for name, r in rows.items()}
+    out: dict[str, Any] = {name: summary(r) for name, r in rows.items()}
     out["same_text"] = f"{same}/{len(texts['local'])}"
     out["response_form"] = remote.confirmed_format
     print(json.dumps({"summary": out}))

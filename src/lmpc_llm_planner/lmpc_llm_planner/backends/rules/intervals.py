@@ -1,24 +1,20 @@
 """Interval helpers of the rules: pick an index of the configured acceleration / steering
 interval pools (the request's ``accel_intervals_mps2`` / ``steer_intervals_rad``) for a
 wanted acceleration, a stop distance or a hold. Each interval is ``(lo, hi)``; the rules
-reason with its midpoint."""
+reason with its midpoint. ``mid`` and ``neutral`` are the shared vocabulary's
+(``lmpc_msgs_py.vocabulary``): the band the MPC and the planner call neutral is one."""
 from __future__ import annotations
 
 from typing import Optional
 
+from lmpc_msgs_py.vocabulary import midpoint as mid
+from lmpc_msgs_py.vocabulary import neutral_index as neutral
+
+__all__ = ["Intervals", "accel_index", "brake_index", "mid", "mildest_accel", "neutral",
+           "required_decel", "stop_index", "strongest_brake"]
+
 Intervals = tuple[tuple[float, float], ...]
 """An interval pool: ``(lo, hi)`` per index."""
-
-
-def mid(iv: tuple[float, float]) -> float:
-    return 0.5 * (iv[0] + iv[1])
-
-
-def neutral(intervals: Intervals) -> int:
-    """The interval containing 0 with the midpoint nearest 0 (else the nearest midpoint)."""
-    containing = [i for i, (lo, hi) in enumerate(intervals) if lo <= 0.0 <= hi]
-    pool = containing or list(range(len(intervals)))
-    return min(pool, key=lambda i: (abs(mid(intervals[i])), i))
 
 
 def strongest_brake(intervals: Intervals) -> int:

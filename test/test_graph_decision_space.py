@@ -1,0 +1,98 @@
+"""A planner and an MPC with different decision-space files (issue 15): run_graph refuses
+to start such a graph; nodes started by hand anyway meet an MPC that refuses every
+Decision loudly (one error line naming both hashes and its file, counted on its
+diagnostics), keeps its baseline behaviour and keeps serving; the episode runs on."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+from graphkit import (
+    REPO,
+    NodeSet,
+    Probe,
+    bridge_params,
+    logs_with_tracebacks,
+    read_episode,
+    run_graph,
+)
+
+
+def _other_space(folder: Path) -> Path:
+    """The packaged decision space with one number changed (the strongest brake)."""
+    from lmpc_msgs_py.vocabulary import DEFAULT_SPACE_PATH
+
+    data = yaml.safe_load(DEFAULT_SPACE_PATH.read_text())
+    data["accel_intervals_mps2"][0] = [-5.0, -4.0]
+    path = folder / "other_space.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_run_graph_does_not_start_a_graph_of_two_decision_spaces(
+    tmp_path: Path, domain_id: int
+) -> None:
+    from lmpc_msgs_py.vocabulary import load_decision_space
+
+    other = _other_space(tmp_path)
+    out = run_graph(tmp_path / "g", domain_id, "--planner", "rules", "--decision-space",
+                    str(other), "--quiet", timeout_s=120)
+    assert out.returncode == 3 and out.summary["outcome"] == "error", out.output[-2000:]
+    detail = out.summary["detail"]
+    assert "decision spaces differ" in detail and "no node started" in detail
+    assert load_decision_space(other).space_hash in detail
+    assert load_decision_space().space_hash in detail and str(other) in detail
+    assert not list((tmp_path / "g" / "run").glob("*.log")), "a node was started"
+    # the same file on both sides starts (checked without nodes: the pre-start test only)
+    mpc = yaml.safe_load((REPO / "src/lmpc_mpc/lmpc_mpc/config/mpc.yaml").read_text())
+    mpc["decision_space_file"] = str(other)
+    (tmp_path / "mpc.yaml").write_text(yaml.safe_dump(mpc))
+    from lmpc_scripts import run_graph as mod
+
+    args = mod.parse_args(["--decision-space", str(other), "--mpc-config",
+                           str(tmp_path / "mpc.yaml")])
+    assert mod.decision_space_mismatch(args) is None
+    assert mod.node_params(args, tmp_path)["planner"]["decision_space_file"] == str(other)
+
+
+@pytest.mark.graph
+def test_a_planner_of_another_decision_space_is_refused_by_the_mpc(
+    tmp_path: Path, domain_id: int
+) -> None:
+    from lmpc_msgs_py.vocabulary import DEFAULT_SPACE_PATH, load_decision_space
+
+    other = _other_space(tmp_path)
+    planner_hash = load_decision_space(other).space_hash
+    mpc_space = load_decision_space()
+    assert planner_hash != mpc_space.space_hash
+    run_dir = tmp_path / "run"
+    with NodeSet(run_dir, domain_id) as g, Probe(domain_id) as probe:
+        probe.listen("/lmpc/control")
+        g.start("mpc", {"use_sim_time": True, "clock_mode": "sync"})
+        g.start("mock_llm", {"use_sim_time": True, "decision_space_file": str(other),
+                             "script_file": str(REPO / "test" / "data" / "go.yaml")})
+        probe.wait_publishers("/lmpc/control", 1, 60)
+        g.start("bridge", bridge_params(run_dir, clock_mode="sync", max_time_s=6.0,
+                                        wait_for_planner=True))
+        assert g.wait_exit("bridge", 120) == 0
+        probe.wait_until("the MPC's diagnostics count the refusals", lambda: int(
+            probe.diag("/mpc_controller").get("refused_decisions", "0")) > 0, 10)
+        diag = probe.diag("/mpc_controller")
+        level_message = probe.diag_messages.get("/mpc_controller", "")
+        controls = [json.loads(m.data) for _, m in probe.messages("/lmpc/control")]
+        mpc_log = g.procs["mpc"].log()
+        g.stop_all()
+    refused = [line for line in mpc_log.splitlines() if "REFUSED decision" in line]
+    assert refused, mpc_log[-3000:]
+    assert planner_hash in refused[0] and mpc_space.space_hash in refused[0]
+    assert str(DEFAULT_SPACE_PATH) in refused[0] and "[ERROR]" in refused[0]
+    assert "decisions refused" in level_message
+    assert int(diag["dropped:/lmpc/decision"]) >= 1
+    modes = {c["mode"] for c in controls}
+    assert controls and "decision" not in modes and "baseline" in modes, modes
+    ep = read_episode(run_dir)
+    assert ep["record"]["steps"], "the episode did not run"
+    assert logs_with_tracebacks(run_dir) == {}
