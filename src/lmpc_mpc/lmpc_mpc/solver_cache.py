@@ -48,9 +48,10 @@ def cache_dir() -> Optional[Path]:
 @lru_cache(maxsize=1)
 def code_fingerprint() -> str:
     """SHA-256 of the problem-building code: the .py files of both packages, CasADi, Python."""
-    digest = hashlib.sha256(f"casadi {ca.__version__} python {sys.version}".encode())
+    versions = f"casadi {getattr(ca, '__version__', '?')} python {sys.version}"
+    digest = hashlib.sha256(versions.encode())
     for package in _PACKAGES:
-        root = Path(__import__(package).__file__).parent
+        root = Path(str(__import__(package).__file__)).parent
         for path in sorted(root.rglob("*.py")):
             digest.update(str(path.relative_to(root)).encode())
             digest.update(path.read_bytes())
@@ -92,7 +93,7 @@ def store(key: str, solver: ca.Function, arrays: dict[str, np.ndarray]) -> bool:
         folder.mkdir(parents=True, exist_ok=True)
         fn_tmp, arr_tmp = folder / f"{key}.casadi{tmp}", folder / f"{key}{tmp}.npz"
         solver.save(str(fn_tmp))
-        np.savez(arr_tmp, **arrays)
+        np.savez(arr_tmp, **arrays)  # type: ignore[arg-type]
         # the arrays last: load() needs both, so a reader never pairs new with missing
         os.replace(fn_tmp, folder / f"{key}.casadi")
         os.replace(arr_tmp, folder / f"{key}.npz")
