@@ -187,3 +187,26 @@ def observation(map_: MapSnapshot, ego: EgoState, agents: Sequence[Agent] = (), 
         agents=AgentArray(stamp_s=t, seq=ego.seq, agents=tuple(agents)),
         signals=signals if signals is not None else SignalStates(stamp_s=ego.stamp_s,
                                                                  seq=ego.seq))
+
+
+def follow_lead_car(controller: Any, steps: int, dt_s: float
+                    ) -> tuple[list[list[float]], list[list[float]]]:
+    """Closed loop on :func:`straight_road`: the ego at 10 m/s, a car 30 m ahead at 6 m/s
+    in the same lane, the plant the solver's own bicycle model. Returns the controls
+    (accel, steer) and the plant states after each step (the MPC's golden scene)."""
+    from lmpc_mpc.solver import simulate_bicycle  # the solver imports this module's peers
+
+    m = straight_road()
+    x = np.array([10.0, -4.8, 0.0, 10.0])
+    controls, states = [], []
+    for k in range(steps):
+        t = k * dt_s
+        lead = agent("lead", x_m=40.0 + 6.0 * t, y_m=-4.8, yaw_rad=0.0, v_mps=6.0,
+                     lane_id="E0_0")
+        ego = ego_state(x_m=float(x[0]), y_m=float(x[1]), yaw_rad=float(x[2]),
+                        v_mps=float(x[3]), stamp_s=t, seq=k, lane_id="E0_0")
+        ctl = controller.compute(observation(m, ego, [lead]))
+        controls.append([ctl.accel_mps2, ctl.steer_rad])
+        x = simulate_bicycle(x, np.array([[ctl.accel_mps2, ctl.steer_rad]]), dt_s=dt_s)[1]
+        states.append([float(v) for v in x])
+    return controls, states

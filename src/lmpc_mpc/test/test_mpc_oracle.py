@@ -101,19 +101,7 @@ def _golden_run(steps: int = 50) -> dict[str, list[list[float]]]:
     """The stored scenario: ego at 10 m/s on the straight road, a car 30 m ahead at
     6 m/s in the same lane; baseline MPC, closed loop with the RK4 plant."""
     ctrl = MpcController(CFG, solver=MpcSolver(CFG))
-    m = S.straight_road()
-    x = np.array([10.0, -4.8, 0.0, 10.0])
-    controls, states = [], []
-    for k in range(steps):
-        t = k * CFG.dt_s
-        lead = S.agent("lead", x_m=40.0 + 6.0 * t, y_m=-4.8, yaw_rad=0.0, v_mps=6.0,
-                       lane_id="E0_0")
-        ego = S.ego_state(x_m=float(x[0]), y_m=float(x[1]), yaw_rad=float(x[2]),
-                          v_mps=float(x[3]), stamp_s=t, seq=k, lane_id="E0_0")
-        ctl = ctrl.compute(S.observation(m, ego, [lead]))
-        controls.append([ctl.accel_mps2, ctl.steer_rad])
-        x = simulate_bicycle(x, np.array([[ctl.accel_mps2, ctl.steer_rad]]), dt_s=CFG.dt_s)[1]
-        states.append([float(v) for v in x])
+    controls, states = S.follow_lead_car(ctrl, steps, CFG.dt_s)
     return {"controls": controls, "states": states}
 
 

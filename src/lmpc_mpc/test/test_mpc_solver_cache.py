@@ -12,7 +12,7 @@ from lmpc_mpc import solver_cache
 from lmpc_mpc import synthetic as S
 from lmpc_mpc.config import load_mpc_config
 from lmpc_mpc.controller import MpcController
-from lmpc_mpc.solver import MpcSolver, simulate_bicycle
+from lmpc_mpc.solver import MpcSolver
 
 CFG = load_mpc_config()
 
@@ -27,18 +27,8 @@ def cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 def _run(steps: int = 30) -> np.ndarray:
     """Closed loop behind a slower car (test_mpc_oracle's golden scene): controls, states."""
     ctrl = MpcController(CFG, solver=MpcSolver(CFG))
-    m = S.straight_road()
-    x = np.array([10.0, -4.8, 0.0, 10.0])
-    rows = []
-    for k in range(steps):
-        t = k * CFG.dt_s
-        lead = S.agent("lead", x_m=40.0 + 6.0 * t, y_m=-4.8, yaw_rad=0.0, v_mps=6.0,
-                       lane_id="E0_0")
-        ego = S.ego_state(x_m=float(x[0]), y_m=float(x[1]), yaw_rad=float(x[2]),
-                          v_mps=float(x[3]), stamp_s=t, seq=k, lane_id="E0_0")
-        ctl = ctrl.compute(S.observation(m, ego, [lead]))
-        x = simulate_bicycle(x, np.array([[ctl.accel_mps2, ctl.steer_rad]]), dt_s=CFG.dt_s)[1]
-        rows.append([ctl.accel_mps2, ctl.steer_rad, *x])
+    controls, states = S.follow_lead_car(ctrl, steps, CFG.dt_s)
+    rows = [u + x for u, x in zip(controls, states)]
     assert rows[-1][5] < 9.5  # it slowed behind the lead: the solver did real work
     return np.array(rows)
 
