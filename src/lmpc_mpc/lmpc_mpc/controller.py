@@ -17,6 +17,7 @@ same observations give the same controls however loaded the machine is.
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, replace
 from typing import Optional, Sequence
@@ -110,6 +111,14 @@ class ControllerStats:
     """Agent-steps an agent was re-attended with the MPC's own forecast (stale check)."""
     go_refused: int = 0
     """Steps on which a decision's "go" bias was refused (the MPC's crossing rule yields)."""
+
+
+@dataclass(frozen=True)
+class ControllerSnapshot:
+    """``MpcController.snapshot``: the controller's own state and its solver's warm start."""
+
+    state: dict
+    solver: tuple
 
 
 _LEAD_IN_OFF_RAD = math.radians(60.0)
@@ -303,6 +312,22 @@ class MpcController:
         self.stale = StaleVerdict()
         self.stale_log.clear()
         self.solver.reset()
+
+    # -- branching -----------------------------------------------------------------------
+    _SHARED = ("config", "vehicle", "solver")
+
+    def snapshot(self) -> "ControllerSnapshot":
+        """Everything the next controls depend on: decisions, plan, warm start, the
+        crossing commitments, safety-floor / hedge holds, cached curves, counters. The
+        compiled solver and the configs are shared, not copied. ``restore`` of it makes the
+        controller continue exactly as it would have from here (episode branching)."""
+        own = {k: v for k, v in self.__dict__.items() if k not in self._SHARED}
+        return ControllerSnapshot(copy.deepcopy(own), self.solver.warm_state())
+
+    def restore(self, snap: "ControllerSnapshot") -> None:
+        """Go back to a ``snapshot`` of this controller (the snapshot stays reusable)."""
+        self.__dict__.update(copy.deepcopy(snap.state))
+        self.solver.set_warm_state(snap.solver)
 
     # -- control -------------------------------------------------------------------------
     def compute(self, obs: Observation, *, now_s: Optional[float] = None) -> Control:
