@@ -239,7 +239,8 @@ class SumoSim:
                # a saved state (``save_state``) carries the random number generators and
                # full-precision positions and speeds: restoring it continues bit-identically
                # (without the precision option positions drift by ~1 mm; docs/BRANCHING.md)
-               "--save-state.rng", "true", "--save-state.precision", "17"]
+               "--save-state.rng", "true", "--save-state.transportables", "true",
+               "--save-state.precision", "17"]
         if scene.additional_files:
             cmd += ["-a", ",".join(str(p) for p in scene.additional_files)]
         begin_s = float(scene.params.get("begin_s", 0.0))
