@@ -41,7 +41,7 @@ from lmpc_llm_planner.schema import (
     ScenarioEncoding,
     WeightAdjustment,
 )
-from lmpc_llm_planner.validation import DecisionMeta, apply_safety_floor, translate
+from lmpc_llm_planner.validation import apply_safety_floor, translate
 from lmpc_msgs_py.messages import Decision
 
 from lmpc_scripts import methods
