@@ -37,6 +37,7 @@ from lmpc_llm_planner.planner import PlannerCore
 from lmpc_llm_planner.scene import Scene
 from lmpc_llm_planner.schema import (
     ActionGuidance,
+    EmergencyDecision,
     LlmDecision,
     ScenarioEncoding,
     WeightAdjustment,
@@ -77,7 +78,7 @@ class Option:
     """One choice at an instant: ``wire`` is the decision (None: no decision)."""
 
     name: str
-    wire: Optional[LlmDecision]
+    wire: Optional[LlmDecision | EmergencyDecision]
 
 
 _WEIGHTS = {  # weight-level variants tried on the route candidate (name -> levels)
@@ -90,22 +91,25 @@ _WEIGHTS = {  # weight-level variants tried on the route candidate (name -> leve
 
 def decision_options(scene: Scene, *, accel_intervals: Sequence[Any],
                      steer_intervals: Sequence[Any], neutral_accel: int, neutral_steer: int,
-                     rules: Optional[LlmDecision] = None, encoding: Encoding = "baseline",
-                     max_options: int = 32) -> list[Option]:
+                     rules: Optional[LlmDecision | EmergencyDecision] = None,
+                     encoding: Encoding = "baseline", max_options: int = 32) -> list[Option]:
     """The options of one instant, in priority order (the list is cut at ``max_options``):
 
     - ``none``: no decision (the MPC baseline; always first);
-    - ``rules``: the rules reasoner's answer, when there is one;
+    - ``rules``: the rules reasoner's answer, when there is one (at an emergency instant
+      its emergency answer: route or kept deviation, baseline attention);
     - the route candidate with every acceleration interval (neutral steering, normal
       weights);
     - the route candidate, neutral bias, with each weight variant of ``_WEIGHTS``;
     - every other offered candidate that does not leave the route: neutral, the mild
-      speed-up and the mild braking interval;
+      speed-up and the mild braking interval (the options take the scene's own
+      candidates at an emergency instant too: the oracle is not bound to the emergency
+      prompt's form);
     - the route candidate with the mild left and right steering intervals.
     """
     def wire(name: str, cand: int, accel: int, steer: int,
              levels: tuple[str, str, str, str] = ("normal",) * 4) -> Option:
-        if encoding == "rules" and rules is not None:
+        if encoding == "rules" and isinstance(rules, LlmDecision):
             enc = rules.scenario_encoding.model_copy(update={"ego_trajectory": cand})
         else:
             enc = ScenarioEncoding(
@@ -197,9 +201,7 @@ class OraclePlanner(PlannerCore):
                                "runs in-process only")
         t0 = time.perf_counter()
         attempts: list[Any] = []
-        rules = self._ask(scene, mode, "all", {}, attempts)
-        if rules is not None and not isinstance(rules, LlmDecision):
-            rules = None  # an emergency answer has no scenario encoding to vary
+        rules = self._ask(scene, mode, "all", {}, attempts)  # an emergency answer too
         cfg = self.mpc_config
         options = decision_options(
             scene, accel_intervals=cfg.accel_intervals_mps2,
@@ -243,7 +245,7 @@ class OraclePlanner(PlannerCore):
         self._log(record)
         return decision
 
-    def _decision(self, scene: Scene, mode: Any, wire: LlmDecision, *,
+    def _decision(self, scene: Scene, mode: Any, wire: LlmDecision | EmergencyDecision, *,
                   commit: bool = False) -> Decision:
         """``wire`` as the planner would hand it over (translated, safety floor applied),
         in force from its latency on until the next instant's decision takes effect."""
