@@ -48,6 +48,7 @@ from lmpc_msgs_py.messages import Decision
 from lmpc_scripts import methods
 
 Encoding = Literal["baseline", "rules"]
+Scoring = Literal["window", "episode"]
 
 
 @dataclass(frozen=True)
@@ -63,6 +64,10 @@ class OracleConfig:
     agent, closest-heading prediction) or the rules reasoner's."""
     route_speed_cap_mps: float = 13.89
     """Upper bound of the route speed the progress term prices the distance to go at."""
+    scoring: Scoring = "window"
+    """``window``: the window's penalties over a common estimate of the episode's steps
+    plus the progress term (:func:`window_score`); ``episode``: the episode's O.C. as
+    it would end with nothing more after the window (:func:`episode_score`)."""
 
     def __post_init__(self) -> None:
         if not self.lookahead_s > 0.0:
@@ -71,6 +76,8 @@ class OracleConfig:
             raise ValueError(f"max_options must be >= 1, got {self.max_options}")
         if self.encoding not in ("baseline", "rules"):
             raise ValueError(f"encoding must be baseline or rules, got {self.encoding!r}")
+        if self.scoring not in ("window", "episode"):
+            raise ValueError(f"scoring must be window or episode, got {self.scoring!r}")
 
 
 @dataclass(frozen=True)
@@ -168,17 +175,37 @@ def window_score(steps: Sequence[Any], *, outcome: str, start_s: float,
     """
     if outcome in ("collision", "off_route", "error"):
         return math.inf
-    pen = sum(step_ineff(s) + W_ACC * step_pen_acc(s) + W_DIST * step_pen_dist(s)
-              for s in steps) / max(episode_steps, 1.0)
+    pen = sum(step_penalty(s) for s in steps) / max(episode_steps, 1.0)
     used = (steps[-1].t_s - start_s) if steps else 0.0
     to_go = 0.0 if outcome == "reached" else end_dist_m / route_speed
     return pen + W_TIME * (used + to_go)
 
 
+def step_penalty(step: Any) -> float:
+    """One step's share of the O.C.'s penalty terms, before averaging."""
+    return step_ineff(step) + W_ACC * step_pen_acc(step) + W_DIST * step_pen_dist(step)
+
+
+def episode_score(steps: Sequence[Any], *, outcome: str, start_s: float, end_dist_m: float,
+                  route_speed: float, before_penalty: float, before_steps: int,
+                  dt_s: float) -> float:
+    """The episode's O.C. if it went on from the window's end to the target at the route
+    speed with no further penalty (lower is better): the penalties of the steps before
+    the window (``before_penalty`` over ``before_steps``) and in it, averaged over the
+    estimated number of steps, plus the time weight times the estimated time."""
+    if outcome in ("collision", "off_route", "error"):
+        return math.inf
+    used = (steps[-1].t_s - start_s) if steps else 0.0
+    to_go = 0.0 if outcome == "reached" else end_dist_m / route_speed
+    total_s = start_s + used + to_go
+    n = max(total_s / dt_s, float(before_steps + len(steps)), 1.0)
+    return (before_penalty + sum(step_penalty(s) for s in steps)) / n + W_TIME * total_s
+
+
 class OraclePlanner(PlannerCore):
     """The planner core whose decisions are the best rolled-out option (module doc)."""
 
-    _SHARED = PlannerCore._SHARED + ("_episode", "oracle")
+    _SHARED = PlannerCore._SHARED + ("_episode", "oracle", "_before")
 
     def __init__(self, *args: Any, oracle: OracleConfig = OracleConfig(), **kwargs: Any
                  ) -> None:
@@ -189,6 +216,7 @@ class OraclePlanner(PlannerCore):
         """Wall time of each decision (its rollouts included)."""
         self.chosen: list[str] = []
         """The option chosen at each instant."""
+        self._before = (0.0, 0)
 
     def attach_episode(self, episode: Any) -> None:
         """The episode this planner branches (``lmpc_bridge.episode.Episode.start``)."""
@@ -214,6 +242,8 @@ class OraclePlanner(PlannerCore):
         speed = route_speed_mps(obs, self.oracle.route_speed_cap_mps)
         dt = ep.sim.dt_s
         episode_steps = (obs.stamp_s + obs.ego.dist_to_target_m / speed) / dt + 1.0
+        before = ep.sim.record().steps[:snap.step_index]
+        self._before = (sum(step_penalty(s) for s in before), len(before))
         scores: list[float] = []
         try:
             for opt in options:
@@ -272,10 +302,15 @@ class OraclePlanner(PlannerCore):
         ep.run(until_s=snap.time_s + self.oracle.lookahead_s, planner=None)
         sim = ep.sim
         steps = sim.record().steps[snap.step_index:]
+        end_dist = sim.observe().ego.dist_to_target_m if sim.outcome == "running" else 0.0
+        if self.oracle.scoring == "episode":
+            return episode_score(steps, outcome=sim.outcome, start_s=snap.time_s,
+                                 end_dist_m=end_dist, route_speed=speed,
+                                 before_penalty=self._before[0],
+                                 before_steps=self._before[1], dt_s=sim.dt_s)
         return window_score(steps, outcome=sim.outcome, start_s=snap.time_s,
-                            end_dist_m=sim.observe().ego.dist_to_target_m
-                            if sim.outcome == "running" else 0.0,
-                            route_speed=speed, episode_steps=episode_steps)
+                            end_dist_m=end_dist, route_speed=speed,
+                            episode_steps=episode_steps)
 
     def wall_summary(self) -> dict[str, float]:
         """Median / p95 / count of the decisions' wall times."""

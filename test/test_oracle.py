@@ -79,11 +79,27 @@ def test_the_window_score_prices_time_distance_and_penalties_and_a_collision_is_
     assert math.isinf(mo.window_score(steps(10), outcome="off_route", end_dist_m=0.0, **kw))
 
 
+def test_the_episode_score_is_the_o_c_the_episode_would_end_with() -> None:
+    near = (SimpleNamespace(v_max_mps=10.0, v_mps=10.0, affected=False, at_red_light=False,
+                            a_mps2=0.0, gap_m=5.0),)
+    steps = [SimpleNamespace(t_s=10.0 + 0.1 * k, nearby=near) for k in range(1, 81)]
+    kw = dict(start_s=10.0, route_speed=10.0, before_penalty=300.0, before_steps=100,
+              dt_s=0.1)
+    # 10 s before, 8 s in the window, 40 m to go at 10 m/s: 22 s, 220 steps
+    score = mo.episode_score(steps, outcome="running", end_dist_m=40.0, **kw)
+    assert score == pytest.approx((300.0 + 80 * 20.0 * 5.0) / 220.0 + 1.5 * 22.0)
+    reached = mo.episode_score(steps[:40], outcome="reached", end_dist_m=0.0, **kw)
+    assert reached == pytest.approx((300.0 + 40 * 100.0) / 140.0 + 1.5 * 14.0)
+    assert math.isinf(mo.episode_score(steps, outcome="collision", end_dist_m=0.0, **kw))
+
+
 def test_bad_oracle_settings_are_refused_in_one_line() -> None:
     with pytest.raises(ValueError, match="max_options"):
         mo.OracleConfig(max_options=0)
     with pytest.raises(ValueError, match="encoding"):
         mo.OracleConfig(encoding="llm")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="scoring"):
+        mo.OracleConfig(scoring="best")  # type: ignore[arg-type]
 
 
 def _oracle_run(tmp_path: Path, family: str, seed: int, config: mo.OracleConfig,
