@@ -181,6 +181,31 @@ def window_score(steps: Sequence[Any], *, outcome: str, start_s: float,
     return pen + W_TIME * (used + to_go)
 
 
+@dataclass(frozen=True)
+class Rollout:
+    """What one rollout gave: the window's step records, the outcome at its end and
+    the distance to the target then (0 once the episode ended)."""
+
+    steps: tuple[Any, ...]
+    outcome: str
+    end_dist_m: float
+
+
+def roll_out(episode: Any, snap: Any, decision: Optional[Decision], *,
+             lookahead_s: float) -> Rollout:
+    """Restore ``snap`` (taken while a planner is asked, ``Episode.begin_step`` done),
+    hand ``decision`` (None: none) to the controller at that step, and run
+    ``lookahead_s`` of sim time with no planner. The episode is left at the window's
+    end (restore ``snap`` again to go on from it). Shared by the oracle and the regret of
+    a recorded run (issue 16, item 3)."""
+    episode.restore(snap, planner=False)
+    episode.end_step(decision)
+    episode.run(until_s=snap.time_s + lookahead_s, planner=None)
+    sim = episode.sim
+    end = sim.observe().ego.dist_to_target_m if sim.outcome == "running" else 0.0
+    return Rollout(tuple(sim.record().steps[snap.step_index:]), sim.outcome, end)
+
+
 def step_penalty(step: Any) -> float:
     """One step's share of the O.C.'s penalty terms, before averaging."""
     return step_ineff(step) + W_ACC * step_pen_acc(step) + W_DIST * step_pen_dist(step)
@@ -296,20 +321,14 @@ class OraclePlanner(PlannerCore):
 
     def _rollout(self, snap: Any, decision: Optional[Decision], speed: float,
                  episode_steps: float) -> float:
-        ep = self._episode
-        ep.restore(snap, planner=False)
-        ep.end_step(decision)
-        ep.run(until_s=snap.time_s + self.oracle.lookahead_s, planner=None)
-        sim = ep.sim
-        steps = sim.record().steps[snap.step_index:]
-        end_dist = sim.observe().ego.dist_to_target_m if sim.outcome == "running" else 0.0
+        r = roll_out(self._episode, snap, decision, lookahead_s=self.oracle.lookahead_s)
         if self.oracle.scoring == "episode":
-            return episode_score(steps, outcome=sim.outcome, start_s=snap.time_s,
-                                 end_dist_m=end_dist, route_speed=speed,
+            return episode_score(r.steps, outcome=r.outcome, start_s=snap.time_s,
+                                 end_dist_m=r.end_dist_m, route_speed=speed,
                                  before_penalty=self._before[0],
-                                 before_steps=self._before[1], dt_s=sim.dt_s)
-        return window_score(steps, outcome=sim.outcome, start_s=snap.time_s,
-                            end_dist_m=end_dist, route_speed=speed,
+                                 before_steps=self._before[1], dt_s=self._episode.sim.dt_s)
+        return window_score(r.steps, outcome=r.outcome, start_s=snap.time_s,
+                            end_dist_m=r.end_dist_m, route_speed=speed,
                             episode_steps=episode_steps)
 
     def wall_summary(self) -> dict[str, float]:
