@@ -184,10 +184,14 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "(OPENAI_* env or --planner-config)", build_lmpc),
     Method("lmpc-replay", "LanguageMPC, decisions replayed from a finished run's logs "
            "(--replay-from, --replay-of)", build_replay),
+    Method("lmpc-oracle", "the best of <= 32 decisions per planning instant, each rolled "
+           "out 8 s in the scene itself (docs/ORACLE.md; tens of times slower)",
+           "lmpc_scripts.method_oracle:build"),
 )}
 """Every method by name, in ``--list-methods`` order."""
 
-LLM_METHODS = tuple(n for n in METHODS if n.startswith("lmpc-") and n != "lmpc-replay")
+LLM_METHODS = tuple(n for n in METHODS if n.startswith("lmpc-")
+                    and n not in ("lmpc-replay", "lmpc-oracle"))
 """The methods that can record the decision logs ``lmpc-replay`` repeats."""
 
 

@@ -9,14 +9,13 @@ the concrete ones.
 """
 from __future__ import annotations
 
-import math
-import time
 from dataclasses import dataclass, field
 from typing import Protocol
 
 from lmpc_msgs_py.messages import Control, Decision, EpisodeMetrics
 from lmpc_msgs_py.observation import Observation
 
+from lmpc_bridge.episode import Episode
 from lmpc_bridge.record import EpisodeRecord
 from lmpc_bridge.sim import SumoSim
 
@@ -59,10 +58,6 @@ class EpisodeResult:
         return self.outcome == "reached"
 
 
-def _finite(control: Control) -> bool:
-    return math.isfinite(control.accel_mps2) and math.isfinite(control.steer_rad)
-
-
 def run_episode(sim: SumoSim, *, family: str, seed: int, controller: ControllerLike,
                 planner: PlannerLike | None = None, max_time_s: float = 200.0) -> EpisodeResult:
     """Run one episode to its end (reached / collision / timeout / error).
@@ -71,46 +66,8 @@ def run_episode(sim: SumoSim, *, family: str, seed: int, controller: ControllerL
     step is taken with a missing control (bounded braking) or without a
     decision, and counted. SUMO errors end it with outcome ``error``.
     """
-    obs = sim.reset(family, seed, max_time_s=max_time_s)
-    decisions = fallbacks = controller_errors = planner_errors = 0
-    solve_ms: list[float] = []
-    wall_ms: list[float] = []
-    last_decision_id: str | None = None
-    while sim.outcome == "running":
-        obs = sim.observe(required_decision_id=last_decision_id)
-        control: Control | None
-        started = time.perf_counter()
-        try:
-            control = controller.compute(obs)
-            if not _finite(control):
-                control, controller_errors = None, controller_errors + 1
-        except Exception:  # noqa: BLE001 - a controller bug must not kill the benchmark
-            control, controller_errors = None, controller_errors + 1
-        wall_ms.append((time.perf_counter() - started) * 1000.0)
-        if control is not None:
-            solve_ms.append(control.solve_time_ms)
-            if control.mode in ("brake", "shifted"):
-                fallbacks += 1
-        if planner is not None:
-            try:
-                decision = planner.on_observation(obs)
-            except Exception:  # noqa: BLE001
-                decision, planner_errors = None, planner_errors + 1
-            if decision is not None:
-                decisions += 1
-                last_decision_id = decision.decision_id
-                if decision.source == "fallback":
-                    fallbacks += 1
-                refusal = controller.on_decision(decision)
-                if refusal is not None:
-                    # in process the planner and the controller were built together: a
-                    # refused decision is a wiring error, not a fault to ride out
-                    raise RuntimeError(f"the controller refused a decision: {refusal}")
-        sim.step(control)
-    status = sim.status()
-    return EpisodeResult(
-        family=family, seed=seed, outcome=status.outcome, detail=status.detail,
-        metrics=status.metrics, record=sim.record(), decisions=decisions, fallbacks=fallbacks,
-        controller_errors=controller_errors, planner_errors=planner_errors,
-        solve_times_ms=tuple(solve_ms), compute_wall_ms=tuple(wall_ms),
-    )
+    episode = Episode(sim, family=family, seed=seed, controller=controller, planner=planner,
+                      max_time_s=max_time_s)
+    episode.start()
+    episode.run()
+    return episode.result()

@@ -83,6 +83,30 @@ _KIND_BY_VCLASS = {
 Outcome = Literal["running", "reached", "collision", "timeout", "off_route", "error"]
 
 
+@dataclass(frozen=True)
+class SimState:
+    """A saved episode of :class:`SumoSim` (``save_state`` / ``load_state``): the SUMO state
+    file and the bridge's own state at that step."""
+
+    path: Path
+    scene: Any
+    step_index: int
+    pose: EgoPose
+    seen: dict[str, Any]
+    history: dict[str, tuple[HistoryPoint, ...]]
+    ego_lane: str | None
+    ego_lane_pos_m: float
+    route_index: int
+    dist_to_target_m: float
+    signals: tuple[LinkSignal, ...]
+    steps: tuple[StepRecord, ...]
+    outcome: str
+    detail: str
+    collided_with: str | None
+    reached_at_s: float | None
+    max_time_s: float
+
+
 class SimError(RuntimeError):
     """The simulation cannot do what was asked (not started, episode over, SUMO failure)."""
 
@@ -211,13 +235,19 @@ class SumoSim:
                "--step-length", f"{DT_S}", "--time-to-teleport", "-1",
                "--collision.action", "none",  # the bridge checks collisions itself
                "--seed", str(seed), "--no-step-log", "true", "--no-warnings", "true",
-               "--duration-log.disable", "true"]
+               "--duration-log.disable", "true",
+               # a saved state (``save_state``) carries the random number generators and
+               # full-precision positions and speeds: restoring it continues bit-identically
+               # (without the precision option positions drift by ~1 mm; docs/BRANCHING.md)
+               "--save-state.rng", "true", "--save-state.transportables", "true",
+               "--save-state.precision", "17"]
         if scene.additional_files:
             cmd += ["-a", ",".join(str(p) for p in scene.additional_files)]
         begin_s = float(scene.params.get("begin_s", 0.0))
         if begin_s > 0.0:
             cmd += ["--begin", f"{begin_s:g}"]
         cmd += list(self._extra_args)
+        self._cmd = list(cmd)
         try:
             t.start(cmd)
         except Exception as exc:  # noqa: BLE001 - libsumo raises its own types
@@ -252,10 +282,7 @@ class SumoSim:
         if EGO_ID not in t.vehicle.getIDList():
             raise SimError(f"scene {family}/{seed}: SUMO did not insert the ego (blocked)")
         self._t0_s = float(t.simulation.getTime())  # our t = 0 is SUMO's first step
-        t.vehicle.subscribeContext(EGO_ID, tc.CMD_GET_VEHICLE_VARIABLE, self._range_m,
-                                   list(_VEHICLE_VARS))
-        t.vehicle.subscribeContext(EGO_ID, tc.CMD_GET_PERSON_VARIABLE, self._range_m,
-                                   list(_PERSON_VARS))
+        self._subscribe()
         net = read_net(scene.net_file)
         self._map, self._route = build_map(scene, net=net)
         self._watch = RouteWatch.of_net(net, scene.ego_route_edges)
@@ -278,6 +305,76 @@ class SumoSim:
                                f"{s.id!r} at ({s.x_m:.1f}, {s.y_m:.1f}): choose another start "
                                f"position or warm-up time")
         return self.observe()
+
+    def _subscribe(self) -> None:
+        """The context subscriptions around the ego the observations come from."""
+        t = self._traci
+        t.vehicle.subscribeContext(EGO_ID, tc.CMD_GET_VEHICLE_VARIABLE, self._range_m,
+                                   list(_VEHICLE_VARS))
+        t.vehicle.subscribeContext(EGO_ID, tc.CMD_GET_PERSON_VARIABLE, self._range_m,
+                                   list(_PERSON_VARS))
+
+    # --- branching ----------------------------------------------------------------------
+    def save_state(self, path: Path) -> "SimState":
+        """The episode as it is now: SUMO's state (``simulation.saveState`` with its random
+        number generators, written to ``path``) and the bridge's own (ego pose, what was
+        seen, histories, route progress, the per-step record, the outcome). ``load_state``
+        continues from it, in this process (libsumo: one simulation per process)."""
+        if not self._started or self._map is None:
+            raise SimError("simulation not running: nothing to save")
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._traci.simulation.saveState(str(path))
+        return SimState(
+            path=path, scene=self._scene, step_index=self._step_index, pose=self._pose,
+            seen=dict(self._seen),
+            history={k: tuple(v) for k, v in self._history.items()},
+            ego_lane=self._ego_lane, ego_lane_pos_m=self._ego_lane_pos_m,
+            route_index=self._route_index, dist_to_target_m=self._dist_to_target_m,
+            signals=self._signals, steps=tuple(self._steps),
+            outcome=self._outcome, detail=self._detail, collided_with=self._collided_with,
+            reached_at_s=self._reached_at_s, max_time_s=self._max_time_s)
+
+    def load_state(self, state: "SimState") -> None:
+        """Go back to ``state`` (from :meth:`save_state` of this episode): SUMO restarts on
+        the saved state (``--load-state``), the ego's speed / lane-change modes and the
+        context subscriptions are set again, and the bridge's state is restored."""
+        if not self._started or self._scene is not state.scene:
+            raise SimError("load_state: the state belongs to another episode (or SUMO is not "
+                           "running): branch within one episode, in the process that saved it")
+        t = self._traci
+        # SUMO restarted on the state, not ``simulation.loadState`` into the running one: the
+        # saved generator states are draw counts, which loadState applies as a discard on
+        # the running generators instead of on freshly seeded ones, so the background
+        # traffic's dawdling diverged from the first step (docs/BRANCHING.md). A restart on
+        # a family scene takes ~15 ms.
+        cmd = [a for i, a in enumerate(self._cmd)
+               if a != "--begin" and (i == 0 or self._cmd[i - 1] != "--begin")]
+        t.close()
+        self._started = False
+        try:
+            t.start(cmd + ["--load-state", str(state.path)])
+        except Exception as exc:  # noqa: BLE001 - libsumo raises its own types
+            raise SimError(f"SUMO cannot load the saved state {state.path}: {exc}") from None
+        self._started = True
+        if EGO_ID in t.vehicle.getIDList():
+            # the ego's modes and the context subscriptions are TraCI settings, not state
+            t.vehicle.setSpeedMode(EGO_ID, 0)
+            t.vehicle.setLaneChangeMode(EGO_ID, 0)
+            self._subscribe()
+        self._step_index = state.step_index
+        self._pose = state.pose
+        self._seen = dict(state.seen)
+        self._history = {k: deque(v, maxlen=self._history_len)
+                         for k, v in state.history.items()}
+        self._ego_lane, self._ego_lane_pos_m = state.ego_lane, state.ego_lane_pos_m
+        self._route_index = state.route_index
+        self._dist_to_target_m = state.dist_to_target_m
+        self._signals = state.signals
+        self._steps = list(state.steps)
+        self._outcome, self._detail = state.outcome, state.detail
+        self._collided_with, self._reached_at_s = state.collided_with, state.reached_at_s
+        self._max_time_s = state.max_time_s
 
     def _check_start_free(self, scene: Scene) -> None:
         """After the warm-up: SimError when a vehicle occupies the ego's start slot."""

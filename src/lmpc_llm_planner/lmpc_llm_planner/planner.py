@@ -20,6 +20,7 @@ instead when that is set (every backend, rules included).
 """
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import statistics
@@ -129,6 +130,14 @@ class PlannerCounters:
         return out
 
 
+@dataclass(frozen=True)
+class PlannerSnapshot:
+    """``PlannerCore.snapshot``: its own state and the decision log's length (bytes)."""
+
+    state: dict
+    log_bytes: Optional[int]
+
+
 class _Timeout(Exception):
     pass
 
@@ -229,6 +238,27 @@ class PlannerCore:
             "normal": deque(maxlen=5), "emergency": deque(maxlen=5)}
         path = log_path if log_path is not None else config.decision_log
         self._log_path = Path(path) if path else None
+
+    # -- branching ------------------------------------------------------------------------
+    _SHARED = ("config", "backend", "space", "_log_path")
+
+    def snapshot(self) -> "PlannerSnapshot":
+        """The planner's state (cadence and emergency timers, counters, the last decision,
+        recent latencies) and how long its decision log is; the backend is shared (a
+        stateless reasoner such as rules; a model's state is not copied). ``restore``
+        continues exactly from it (episode branching, ``lmpc_bridge.episode``)."""
+        own = {k: v for k, v in self.__dict__.items() if k not in self._SHARED}
+        size = None
+        if self._log_path is not None and self._log_path.is_file():
+            size = self._log_path.stat().st_size
+        return PlannerSnapshot(copy.deepcopy(own), size)
+
+    def restore(self, snap: "PlannerSnapshot") -> None:
+        """Go back to a ``snapshot``; the decision log is cut back to its length then."""
+        self.__dict__.update(copy.deepcopy(snap.state))
+        if self._log_path is not None and self._log_path.is_file():
+            with self._log_path.open("r+b") as fh:
+                fh.truncate(snap.log_bytes or 0)
 
     # -- inputs ---------------------------------------------------------------------------
     def on_instruction(self, text: str) -> None:

@@ -17,6 +17,7 @@ same observations give the same controls however loaded the machine is.
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, replace
 from typing import Mapping, Optional, Sequence
@@ -114,6 +115,14 @@ class ControllerStats:
     refused_decisions: int = 0
     """Decisions refused on arrival: made in another decision space (their ``space_hash``
     is not this MPC's) or with an interval index outside this space."""
+
+
+@dataclass(frozen=True)
+class ControllerSnapshot:
+    """``MpcController.snapshot``: the controller's own state and its solver's warm start."""
+
+    state: dict
+    solver: tuple
 
 
 _LEAD_IN_OFF_RAD = math.radians(60.0)
@@ -325,6 +334,22 @@ class MpcController:
         self.stale = StaleVerdict()
         self.stale_log.clear()
         self.solver.reset()
+
+    # -- branching -----------------------------------------------------------------------
+    _SHARED = ("config", "vehicle", "solver")
+
+    def snapshot(self) -> "ControllerSnapshot":
+        """Everything the next controls depend on: decisions, plan, warm start, the
+        crossing commitments, safety-floor / hedge holds, cached curves, counters. The
+        compiled solver and the configs are shared, not copied. ``restore`` of it makes the
+        controller continue exactly as it would have from here (episode branching)."""
+        own = {k: v for k, v in self.__dict__.items() if k not in self._SHARED}
+        return ControllerSnapshot(copy.deepcopy(own), self.solver.warm_state())
+
+    def restore(self, snap: "ControllerSnapshot") -> None:
+        """Go back to a ``snapshot`` of this controller (the snapshot stays reusable)."""
+        self.__dict__.update(copy.deepcopy(snap.state))
+        self.solver.set_warm_state(snap.solver)
 
     # -- control -------------------------------------------------------------------------
     def compute(self, obs: Observation, *, now_s: Optional[float] = None) -> Control:

@@ -386,6 +386,19 @@ class MpcSolver:
         self._warm = None
         self._warm_slots = None
 
+    def warm_state(self) -> tuple[Optional[np.ndarray], Optional[int], bool, int]:
+        """What the next solve starts from (warm start, its slot count, the reconverge flag)
+        and the over-budget count: ``set_warm_state`` of it makes the next solve repeat
+        exactly (episode branching, ``lmpc_bridge.episode``)."""
+        warm = None if self._warm is None else self._warm.copy()
+        return (warm, self._warm_slots, self._reconverge_next, self.over_budget)
+
+    def set_warm_state(self, state: tuple[Optional[np.ndarray], Optional[int], bool, int]
+                       ) -> None:
+        """Restore a ``warm_state``."""
+        warm, self._warm_slots, self._reconverge_next, self.over_budget = state
+        self._warm = None if warm is None else warm.copy()
+
     def reconverge(self) -> None:
         """The problem changed in a jump (a new decision: other weights, bias, attended
         agents): the next RTI solve iterates to convergence (``rti_cold_iterations``)

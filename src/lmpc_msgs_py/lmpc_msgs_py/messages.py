@@ -231,7 +231,7 @@ class SignalStates(LmpcMessage):
 
 # --- decision ----------------------------------------------------------------------------
 DecisionSource = Annotated[
-    str, Field(pattern=r"^(rules|fallback|replay|mock|llm:[\w.:/\-]{1,96})$")]
+    str, Field(pattern=r"^(rules|oracle|fallback|replay|mock|llm:[\w.:/\-]{1,96})$")]
 DecisionMode = Literal["normal", "emergency"]
 WeightLevel = Literal["low", "normal", "high"]
 

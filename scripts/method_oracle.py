@@ -1,0 +1,366 @@
+"""``lmpc-oracle``: at each planning instant, the best of a bounded set of decisions,
+found by rolling each one out in the simulation itself (docs/ORACLE.md).
+
+The planner is the rules planner's core (same cadence, same emergency trigger, same
+decision latency model, same scene and candidates, same safety floor and translation);
+only what it decides differs. At each instant (``PlannerCore.due``) the oracle
+
+1. lists the options (:func:`decision_options`, at most ``max_options``): always "no
+   decision" (the MPC baseline) and the rules reasoner's own answer, then reference
+   candidate x acceleration bias x steering bias x weight levels, with the agents'
+   attention and predictions of the baseline or of the rules reasoner (``encoding``);
+2. snapshots the episode (``lmpc_bridge.episode``: exact branching) and rolls each option
+   out for ``lookahead_s`` of sim time: the option handed to the same MPC at this
+   step, then no further decision, the scene's own traffic around it;
+3. scores each rollout (:func:`window_score`): the paper's per-step penalties summed over
+   the window (priced as in the O.C.), the time used plus the distance still to go at
+   the route's speed priced at the O.C.'s time weight; a collision or leaving the route
+   scores +inf; ties go to the earlier option (no decision first);
+4. restores the snapshot and applies the best option (no decision: returns nothing).
+
+Deterministic: the rollouts are exact repeats of the episode (docs/BRANCHING.md), the
+options are listed in a fixed order. The planner needs the episode, so it runs only
+in-process (``Episode.attach_episode``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import statistics
+import time
+from dataclasses import dataclass
+from typing import Any, Literal, Optional, Sequence
+
+from lmpc_bridge.evaluation.scenes import SceneSpec, Wiring
+from lmpc_bridge.metrics import W_ACC, W_DIST, W_TIME, step_ineff, step_pen_acc, step_pen_dist
+from lmpc_llm_planner.planner import PlannerCore
+from lmpc_llm_planner.scene import Scene
+from lmpc_llm_planner.schema import (
+    ActionGuidance,
+    EmergencyDecision,
+    LlmDecision,
+    ScenarioEncoding,
+    WeightAdjustment,
+)
+from lmpc_llm_planner.validation import apply_safety_floor, translate
+from lmpc_msgs_py.messages import Decision
+
+from lmpc_scripts import methods
+
+Encoding = Literal["baseline", "rules"]
+Scoring = Literal["window", "episode"]
+
+
+@dataclass(frozen=True)
+class OracleConfig:
+    """The oracle's search (docs/ORACLE.md)."""
+
+    lookahead_s: float = 8.0
+    """Sim time each option is rolled out for."""
+    max_options: int = 32
+    """At most this many options per instant (no decision and the rules' answer first)."""
+    encoding: Encoding = "baseline"
+    """Attention and agent predictions of the options: the baseline's (every offered
+    agent, closest-heading prediction) or the rules reasoner's."""
+    route_speed_cap_mps: float = 13.89
+    """Upper bound of the route speed the progress term prices the distance to go at."""
+    scoring: Scoring = "window"
+    """``window``: the window's penalties over a common estimate of the episode's steps
+    plus the progress term (:func:`window_score`); ``episode``: the episode's O.C. as
+    it would end with nothing more after the window (:func:`episode_score`)."""
+
+    def __post_init__(self) -> None:
+        if not self.lookahead_s > 0.0:
+            raise ValueError(f"lookahead_s must be > 0, got {self.lookahead_s}")
+        if self.max_options < 1:
+            raise ValueError(f"max_options must be >= 1, got {self.max_options}")
+        if self.encoding not in ("baseline", "rules"):
+            raise ValueError(f"encoding must be baseline or rules, got {self.encoding!r}")
+        if self.scoring not in ("window", "episode"):
+            raise ValueError(f"scoring must be window or episode, got {self.scoring!r}")
+
+
+@dataclass(frozen=True)
+class Option:
+    """One choice at an instant: ``wire`` is the decision (None: no decision)."""
+
+    name: str
+    wire: Optional[LlmDecision | EmergencyDecision]
+
+
+_WEIGHTS = {  # weight-level variants tried on the route candidate (name -> levels)
+    "cautious": ("normal", "normal", "normal", "high"),
+    "bold": ("normal", "normal", "normal", "low"),
+    "tight": ("high", "normal", "normal", "normal"),
+    "smooth": ("normal", "normal", "high", "normal"),
+}
+
+
+def decision_options(scene: Scene, *, accel_intervals: Sequence[Any],
+                     steer_intervals: Sequence[Any], neutral_accel: int, neutral_steer: int,
+                     rules: Optional[LlmDecision | EmergencyDecision] = None,
+                     encoding: Encoding = "baseline", max_options: int = 32) -> list[Option]:
+    """The options of one instant, in priority order (the list is cut at ``max_options``):
+
+    - ``none``: no decision (the MPC baseline; always first);
+    - ``rules``: the rules reasoner's answer, when there is one (at an emergency instant
+      its emergency answer: route or kept deviation, baseline attention);
+    - the route candidate with every acceleration interval (neutral steering, normal
+      weights);
+    - the route candidate, neutral bias, with each weight variant of ``_WEIGHTS``;
+    - every other offered candidate that does not leave the route: neutral, the mild
+      speed-up and the mild braking interval (the options take the scene's own
+      candidates at an emergency instant too: the oracle is not bound to the emergency
+      prompt's form);
+    - the route candidate with the mild left and right steering intervals.
+    """
+    def wire(name: str, cand: int, accel: int, steer: int,
+             levels: tuple[str, str, str, str] = ("normal",) * 4) -> Option:
+        if encoding == "rules" and isinstance(rules, LlmDecision):
+            enc = rules.scenario_encoding.model_copy(update={"ego_trajectory": cand})
+        else:
+            enc = ScenarioEncoding(
+                ego_trajectory=cand, attention=list(scene.agent_ids),
+                agent_trajectories={v.id: v.closest_heading_id for v in scene.agents})
+        return Option(name, LlmDecision(
+            reasoning=f"oracle option {name}", scenario_encoding=enc,
+            action_guidance=ActionGuidance(accel_interval=accel, steer_interval=steer),
+            weight_adjustment=WeightAdjustment(tracking=levels[0], action=levels[1],
+                                               smoothness=levels[2], safety=levels[3])))
+
+    route = scene.route_candidate_id
+    out = [Option("none", None)]
+    if rules is not None:
+        out.append(Option("rules", rules))
+    for a in range(len(accel_intervals)):
+        out.append(wire(f"route/a{a}", route, a, neutral_steer))
+    for name, levels in _WEIGHTS.items():
+        out.append(wire(f"route/{name}", route, neutral_accel, neutral_steer, levels))
+    mild = [a for a in (neutral_accel, neutral_accel + 1, neutral_accel - 1)
+            if 0 <= a < len(accel_intervals)]
+    for c in range(len(scene.ego_candidates)):
+        if c == route or c in scene.leaving_ids:
+            continue
+        for a in mild:
+            out.append(wire(f"cand{c}/a{a}", c, a, neutral_steer))
+    for s in (neutral_steer - 1, neutral_steer + 1):
+        if 0 <= s < len(steer_intervals):
+            out.append(wire(f"route/s{s}", route, neutral_accel, s))
+    return out[:max_options]
+
+
+def route_speed_mps(obs: Any, cap_mps: float) -> float:
+    """The route's speed: the length-weighted mean speed limit of its lanes, at most
+    ``cap_mps`` (the distance still to go is priced at it)."""
+    lanes = {ln.id: ln for ln in obs.map.lanes}
+    total = weighted = 0.0
+    for lane_id in obs.map.ego_route:
+        ln = lanes.get(lane_id)
+        if ln is None:
+            continue
+        length = float(ln.length_m)
+        total += length
+        weighted += length * ln.speed_limit_mps
+    speed = weighted / total if total > 0.0 else cap_mps
+    return max(min(speed, cap_mps), 1.0)
+
+
+def window_score(steps: Sequence[Any], *, outcome: str, start_s: float,
+                 end_dist_m: float, route_speed: float, episode_steps: float) -> float:
+    """The score of one rollout (lower is better; docs/ORACLE.md).
+
+    ``steps``: the window's step records; ``outcome``: the episode's outcome at its end;
+    ``end_dist_m``: the distance to the target then; ``episode_steps``: the estimated
+    number of steps of the whole episode (the O.C. averages its penalties over them).
+    """
+    if outcome in ("collision", "off_route", "error"):
+        return math.inf
+    pen = sum(step_penalty(s) for s in steps) / max(episode_steps, 1.0)
+    used = (steps[-1].t_s - start_s) if steps else 0.0
+    to_go = 0.0 if outcome == "reached" else end_dist_m / route_speed
+    return pen + W_TIME * (used + to_go)
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """What one rollout gave: the window's step records, the outcome at its end and
+    the distance to the target then (0 once the episode ended)."""
+
+    steps: tuple[Any, ...]
+    outcome: str
+    end_dist_m: float
+
+
+def roll_out(episode: Any, snap: Any, decision: Optional[Decision], *,
+             lookahead_s: float) -> Rollout:
+    """Restore ``snap`` (taken while a planner is asked, ``Episode.begin_step`` done),
+    hand ``decision`` (None: none) to the controller at that step, and run
+    ``lookahead_s`` of sim time with no planner. The episode is left at the window's
+    end (restore ``snap`` again to go on from it). Shared by the oracle and the regret of
+    a recorded run (issue 16, item 3)."""
+    episode.restore(snap, planner=False)
+    episode.end_step(decision)
+    episode.run(until_s=snap.time_s + lookahead_s, planner=None)
+    sim = episode.sim
+    end = sim.observe().ego.dist_to_target_m if sim.outcome == "running" else 0.0
+    return Rollout(tuple(sim.record().steps[snap.step_index:]), sim.outcome, end)
+
+
+def step_penalty(step: Any) -> float:
+    """One step's share of the O.C.'s penalty terms, before averaging."""
+    return step_ineff(step) + W_ACC * step_pen_acc(step) + W_DIST * step_pen_dist(step)
+
+
+def episode_score(steps: Sequence[Any], *, outcome: str, start_s: float, end_dist_m: float,
+                  route_speed: float, before_penalty: float, before_steps: int,
+                  dt_s: float) -> float:
+    """The episode's O.C. if it went on from the window's end to the target at the route
+    speed with no further penalty (lower is better): the penalties of the steps before
+    the window (``before_penalty`` over ``before_steps``) and in it, averaged over the
+    estimated number of steps, plus the time weight times the estimated time."""
+    if outcome in ("collision", "off_route", "error"):
+        return math.inf
+    used = (steps[-1].t_s - start_s) if steps else 0.0
+    to_go = 0.0 if outcome == "reached" else end_dist_m / route_speed
+    total_s = start_s + used + to_go
+    n = max(total_s / dt_s, float(before_steps + len(steps)), 1.0)
+    return (before_penalty + sum(step_penalty(s) for s in steps)) / n + W_TIME * total_s
+
+
+class OraclePlanner(PlannerCore):
+    """The planner core whose decisions are the best rolled-out option (module doc)."""
+
+    _SHARED = PlannerCore._SHARED + ("_episode", "oracle", "_before")
+
+    def __init__(self, *args: Any, oracle: OracleConfig = OracleConfig(), **kwargs: Any
+                 ) -> None:
+        super().__init__(*args, **kwargs)
+        self.oracle = oracle
+        self._episode: Any = None
+        self.wall_s: list[float] = []
+        """Wall time of each decision (its rollouts included)."""
+        self.chosen: list[str] = []
+        """The option chosen at each instant."""
+        self._before = (0.0, 0)
+
+    def attach_episode(self, episode: Any) -> None:
+        """The episode this planner branches (``lmpc_bridge.episode.Episode.start``)."""
+        self._episode = episode
+
+    # -- one instant ------------------------------------------------------------------------
+    def _decide(self, scene: Scene, mode: Any) -> Optional[Decision]:  # type: ignore[override]
+        if self._episode is None:
+            raise RuntimeError("lmpc-oracle needs the episode (Episode.attach_episode): it "
+                               "runs in-process only")
+        t0 = time.perf_counter()
+        attempts: list[Any] = []
+        rules = self._ask(scene, mode, "all", {}, attempts)  # an emergency answer too
+        space = self.space
+        options = decision_options(
+            scene, accel_intervals=space.accel_intervals_mps2,
+            steer_intervals=space.steer_intervals_rad, neutral_accel=space.neutral_accel_index,
+            neutral_steer=space.neutral_steer_index, rules=rules,
+            encoding=self.oracle.encoding, max_options=self.oracle.max_options)
+        ep = self._episode
+        snap = ep.snapshot()
+        obs = scene.obs
+        speed = route_speed_mps(obs, self.oracle.route_speed_cap_mps)
+        dt = ep.sim.dt_s
+        episode_steps = (obs.stamp_s + obs.ego.dist_to_target_m / speed) / dt + 1.0
+        before = ep.sim.record().steps[:snap.step_index]
+        self._before = (sum(step_penalty(s) for s in before), len(before))
+        scores: list[float] = []
+        try:
+            for opt in options:
+                decision = None if opt.wire is None else self._decision(scene, mode, opt.wire)
+                scores.append(self._rollout(snap, decision, speed, episode_steps))
+        finally:
+            ep.restore(snap, planner=False)
+            ep.discard(snap)
+        best = min(range(len(options)), key=lambda i: (scores[i], i))
+        choice = options[best]
+        decision = None if choice.wire is None else self._decision(
+            scene, mode, choice.wire, commit=True)
+        wall = time.perf_counter() - t0
+        self.wall_s.append(wall)
+        self.chosen.append(choice.name)
+        record: dict[str, Any] = {
+            "kind": "oracle", "stamp_s": obs.stamp_s, "mode": mode, "chosen": choice.name,
+            "wall_s": round(wall, 4),
+            "scores": {o.name: (None if math.isinf(s) else round(s, 6))
+                       for o, s in zip(options, scores)},
+        }
+        if decision is not None:
+            self.counters.decisions += 1
+            self.last_decision = decision
+            self._recent_latency[mode].append(decision.latency_s)
+            record.update(decision_id=decision.decision_id, source=decision.source,
+                          latency_s=decision.latency_s,
+                          decision=decision.model_dump(mode="json", by_alias=True))
+        self._log(record)
+        return decision
+
+    def _decision(self, scene: Scene, mode: Any, wire: LlmDecision | EmergencyDecision, *,
+                  commit: bool = False) -> Decision:
+        """``wire`` as the planner would hand it over (translated, safety floor applied),
+        in force from its latency on until the next instant's decision takes effect."""
+        n = self._n
+        meta = self._next_meta(scene, source="oracle", mode=mode,
+                               latency_s=getattr(self.backend, "reported_latency_s", 0.0),
+                               tokens_in=0, tokens_out=0)
+        if not commit:
+            self._n = n  # a rollout's decision takes the id the applied one will get
+        meta = dataclasses.replace(meta, ttl_s=self.config.period_s + max(
+            meta.latency_s, self._episode.sim.dt_s))
+        decision = translate(wire, scene=scene, space=self.space, meta=meta,
+                             previous=self.last_decision)
+        return apply_safety_floor(
+            decision, scene=scene, ttc_s=self.config.safety_floor_ttc_s,
+            dist_m=self.config.safety_floor_dist_m, lookahead_m=self.config.lookahead_m,
+            reach_s=self.config.safety_floor_reach_s).decision
+
+    def _rollout(self, snap: Any, decision: Optional[Decision], speed: float,
+                 episode_steps: float) -> float:
+        r = roll_out(self._episode, snap, decision, lookahead_s=self.oracle.lookahead_s)
+        if self.oracle.scoring == "episode":
+            return episode_score(r.steps, outcome=r.outcome, start_s=snap.time_s,
+                                 end_dist_m=r.end_dist_m, route_speed=speed,
+                                 before_penalty=self._before[0],
+                                 before_steps=self._before[1], dt_s=self._episode.sim.dt_s)
+        return window_score(r.steps, outcome=r.outcome, start_s=snap.time_s,
+                            end_dist_m=r.end_dist_m, route_speed=speed,
+                            episode_steps=episode_steps)
+
+    def wall_summary(self) -> dict[str, float]:
+        """Median / p95 / count of the decisions' wall times."""
+        w = sorted(self.wall_s)
+        if not w:
+            return {"oracle_decisions": 0}
+        return {"oracle_decisions": len(w), "oracle_wall_s_median": round(statistics.median(w), 3),
+                "oracle_wall_s_p95": round(w[min(len(w) - 1, int(0.95 * len(w)))], 3)}
+
+
+def build(spec: SceneSpec, oracle: OracleConfig = OracleConfig()) -> Wiring:
+    """``lmpc-oracle``: the oracle planner on the rules planner's settings, and the MPC."""
+    base = methods.make_planner("lmpc-rules", None, latency=spec.latency,
+                                planner_config=spec.planner_config, backend=spec.backend)
+    planner = OraclePlanner(base.config, base.backend, base.space,
+                            log_path=spec.log_path, oracle=oracle)
+    if spec.instruction:
+        planner.on_instruction(spec.instruction)
+    controller = methods.make_controller()
+
+    def finish(log: Any) -> dict[str, Any]:
+        cells = methods.controller_cells(controller, log)
+        w = planner.wall_summary()
+        if w["oracle_decisions"]:
+            counts: dict[str, int] = {}
+            for name in planner.chosen:
+                counts[name] = counts.get(name, 0) + 1
+            cells["note"] = (
+                f"oracle: {w['oracle_decisions']} instants, wall per instant median "
+                f"{w['oracle_wall_s_median']} s, p95 {w['oracle_wall_s_p95']} s; chosen "
+                + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
+        return cells
+
+    return Wiring(planner, controller, finish)
