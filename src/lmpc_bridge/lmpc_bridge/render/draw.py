@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional, cast
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -72,7 +72,8 @@ def draw_map(ax: Axes, snapshot: MapSnapshot, *, net_file: Optional[Path] = None
             # an edge line of the fill colour closes hairline gaps between adjacent lanes
             ax.add_collection(PolyCollection(by_kind[kind], facecolors=colour,
                                              edgecolors=colour, linewidths=0.6, zorder=z))
-    solid, dashed = [], []
+    solid: list[np.ndarray] = []
+    dashed: list[np.ndarray] = []
     for lane in snapshot.lanes:
         if lane.internal or _is_sidewalk(lane):
             continue
@@ -88,11 +89,12 @@ def draw_map(ax: Axes, snapshot: MapSnapshot, *, net_file: Optional[Path] = None
     lanes = {lane.id: lane for lane in snapshot.lanes}
     stop_segments, stop_colours = [], []
     for stop in snapshot.stop_lines:
-        lane = lanes.get(stop.lane_id)
-        if lane is None or _is_sidewalk(lane):
+        stop_lane = lanes.get(stop.lane_id)
+        if stop_lane is None or _is_sidewalk(stop_lane):
             continue
-        x, y, heading = point_along(lane, lane.length_m + 1e3)
-        nx, ny = -math.sin(heading) * lane.width_m / 2, math.cos(heading) * lane.width_m / 2
+        x, y, heading = point_along(stop_lane, stop_lane.length_m + 1e3)
+        half = stop_lane.width_m / 2
+        nx, ny = -math.sin(heading) * half, math.cos(heading) * half
         stop_segments.append([(x - nx, y - ny), (x + nx, y + ny)])
         stop_colours.append("#c0392b" if stop.signalized else "#f5f5f5")
     if stop_segments:
@@ -127,7 +129,7 @@ def fit_to_axes(ax: Axes, bounds: tuple[float, ...]) -> tuple[float, ...]:
     """Grow ``bounds`` (about their centre) to the shape of the axes box, so an
     equal-aspect map fills the panel instead of shrinking it."""
     x0, x1, y0, y1 = bounds
-    fig_w, fig_h = ax.figure.get_size_inches()
+    fig_w, fig_h = cast(Figure, ax.figure).get_size_inches()
     box = ax.get_position(original=True)  # the slot, not the aspect-shrunk box
     want = (box.height * fig_h) / max(box.width * fig_w, 1e-9)  # height / width
     w, h = x1 - x0, y1 - y0
@@ -176,7 +178,7 @@ def speed_line(ax: Axes, record: EpisodeRecord, *, v_max_mps: float,
     """The ego path of ``record`` coloured by speed (0 .. ``v_max_mps``)."""
     xy = np.array([(s.x_m, s.y_m) for s in record.steps])
     speeds = np.array([s.v_mps for s in record.steps])
-    segments = np.stack([xy[:-1], xy[1:]], axis=1) if len(xy) > 1 else np.zeros((0, 2, 2))
+    segments: Any = np.stack([xy[:-1], xy[1:]], axis=1) if len(xy) > 1 else np.zeros((0, 2, 2))
     line = LineCollection(segments, cmap="plasma", linewidths=lw, zorder=4,
                           capstyle="round")
     line.set_array(speeds[:-1] if len(speeds) > 1 else speeds)

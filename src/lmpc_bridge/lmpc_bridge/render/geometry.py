@@ -136,7 +136,7 @@ def ego_start_pose(snapshot: MapSnapshot, depart_pos_m: float,
     return point_along(lanes[snapshot.ego_route[0]], depart_pos_m - vehicle.length_m / 2.0)
 
 
-def bounds(points: Iterable[tuple[float, float]], pad_m: float) -> tuple[float, ...]:
+def bounds(points: Iterable[Sequence[float]], pad_m: float) -> tuple[float, ...]:
     """(x0, x1, y0, y1) of ``points`` padded by ``pad_m``."""
     arr = np.asarray(list(points), dtype=float)
     lo, hi = arr.min(axis=0) - pad_m, arr.max(axis=0) + pad_m

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 
 from lmpc_bridge.record import StepRecord
 from lmpc_bridge.render.draw import (
@@ -107,8 +108,9 @@ def _gif_frames(run: RunData, *, every_k: int, width_px: int) -> list[Any]:
     trail.set_animated(True)
     text.set_animated(True)
     # the map is drawn once; each frame restores it and draws only what moves (blitting)
-    fig.canvas.draw()
-    background = fig.canvas.copy_from_bbox(fig.bbox)
+    canvas = cast(FigureCanvasAgg, fig.canvas)
+    canvas.draw()
+    background = canvas.copy_from_bbox(fig.bbox)
     dynamic: list[Any] = []
     for idx in indices:
         for artist in dynamic:
@@ -128,10 +130,10 @@ def _gif_frames(run: RunData, *, every_k: int, width_px: int) -> list[Any]:
                       f"a = {step.applied_accel_mps2:+4.1f} m/s²   "
                       f"mode {step.control_mode or '-'}{status}\n"
                       + _decision_text(run, step))
-        fig.canvas.restore_region(background)
+        canvas.restore_region(background)
         for artist in (trail, *sorted(dynamic, key=lambda a: a.get_zorder()), text):
             ax.draw_artist(artist)
-        rgba = np.asarray(fig.canvas.buffer_rgba())
+        rgba = np.asarray(canvas.buffer_rgba())
         image = Image.fromarray(rgba[..., :3].copy())
         frames.append(image.quantize(colors=128, method=Image.Quantize.FASTOCTREE,
                                      dither=Image.Dither.NONE))
