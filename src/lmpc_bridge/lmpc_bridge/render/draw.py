@@ -53,6 +53,27 @@ def draw_map(ax: Axes, snapshot: MapSnapshot, *, net_file: Optional[Path] = None
              marking_lw: float = 0.8) -> None:
     """Roads, junctions, lane markings, stop lines, ego route and target on ``ax``."""
     ax.set_facecolor(BACKGROUND)
+    _draw_surfaces(ax, snapshot, net_file)
+    _draw_markings(ax, snapshot, marking_lw)
+    lanes = {lane.id: lane for lane in snapshot.lanes}
+    _draw_stop_lines(ax, snapshot, lanes, marking_lw)
+    if show_route:
+        route = [p for lane_id in snapshot.ego_route if lane_id in lanes
+                 for p in lanes[lane_id].centerline]
+        if route:
+            xs, ys = zip(*route)
+            ax.plot(xs, ys, color=EGO, lw=1.0, ls=(0, (1, 2)), alpha=0.8, zorder=2.5,
+                    label="ego route")
+    if show_target:
+        target = snapshot.target
+        ax.add_patch(Circle(target.center, target.radius_m, facecolor=TARGET, alpha=0.35,
+                            edgecolor=TARGET, lw=1.5, zorder=2.6, label="target area"))
+        ax.plot(*target.center, marker="*", color=TARGET, ms=9, zorder=2.7)
+    ax.set_aspect("equal")
+
+
+def _draw_surfaces(ax: Axes, snapshot: MapSnapshot, net_file: Optional[Path]) -> None:
+    """Junction outlines, then sidewalks, bike lanes, junction lanes and roads."""
     junctions = junction_outlines(net_file)
     if junctions:
         ax.add_collection(PolyCollection(junctions, facecolors=JUNCTION, edgecolors=JUNCTION,
@@ -72,6 +93,10 @@ def draw_map(ax: Axes, snapshot: MapSnapshot, *, net_file: Optional[Path] = None
             # an edge line of the fill colour closes hairline gaps between adjacent lanes
             ax.add_collection(PolyCollection(by_kind[kind], facecolors=colour,
                                              edgecolors=colour, linewidths=0.6, zorder=z))
+
+
+def _draw_markings(ax: Axes, snapshot: MapSnapshot, marking_lw: float) -> None:
+    """Lane borders: dashed between lanes of one direction, solid at the road edge."""
     solid: list[np.ndarray] = []
     dashed: list[np.ndarray] = []
     for lane in snapshot.lanes:
@@ -86,33 +111,23 @@ def draw_map(ax: Axes, snapshot: MapSnapshot, *, net_file: Optional[Path] = None
     ax.add_collection(LineCollection(solid, colors=MARKING, linewidths=marking_lw, zorder=2))
     ax.add_collection(LineCollection(dashed, colors=MARKING, linewidths=marking_lw * 0.8,
                                      linestyles=(0, (4, 4)), zorder=2))
-    lanes = {lane.id: lane for lane in snapshot.lanes}
+
+
+def _draw_stop_lines(ax: Axes, snapshot: MapSnapshot, lanes: dict[str, Lane],
+                     marking_lw: float) -> None:
+    """Stop lines across their lane's end: red when signal-controlled."""
     stop_segments, stop_colours = [], []
     for stop in snapshot.stop_lines:
-        stop_lane = lanes.get(stop.lane_id)
-        if stop_lane is None or _is_sidewalk(stop_lane):
+        lane = lanes.get(stop.lane_id)
+        if lane is None or _is_sidewalk(lane):
             continue
-        x, y, heading = point_along(stop_lane, stop_lane.length_m + 1e3)
-        half = stop_lane.width_m / 2
-        nx, ny = -math.sin(heading) * half, math.cos(heading) * half
+        x, y, heading = point_along(lane, lane.length_m + 1e3)
+        nx, ny = -math.sin(heading) * lane.width_m / 2, math.cos(heading) * lane.width_m / 2
         stop_segments.append([(x - nx, y - ny), (x + nx, y + ny)])
         stop_colours.append("#c0392b" if stop.signalized else "#f5f5f5")
     if stop_segments:
         ax.add_collection(LineCollection(stop_segments, colors=stop_colours,
                                          linewidths=marking_lw * 2.2, zorder=2.1))
-    if show_route:
-        route = [p for lane_id in snapshot.ego_route if lane_id in lanes
-                 for p in lanes[lane_id].centerline]
-        if route:
-            xs, ys = zip(*route)
-            ax.plot(xs, ys, color=EGO, lw=1.0, ls=(0, (1, 2)), alpha=0.8, zorder=2.5,
-                    label="ego route")
-    if show_target:
-        target = snapshot.target
-        ax.add_patch(Circle(target.center, target.radius_m, facecolor=TARGET, alpha=0.35,
-                            edgecolor=TARGET, lw=1.5, zorder=2.6, label="target area"))
-        ax.plot(*target.center, marker="*", color=TARGET, ms=9, zorder=2.7)
-    ax.set_aspect("equal")
 
 
 def draw_box(ax: Axes, corners: np.ndarray, *, facecolor: str, edgecolor: str = "black",
