@@ -240,7 +240,7 @@ def write_outputs(args: argparse.Namespace, rows: list[dict[str, Any]], log_dir:
         (args.out / "decisions.md").write_text(stats_md(stats))
         print(stats_md(stats))
     try:
-        from lmpc_scripts.render import plot_oc_bars
+        from lmpc_bridge.render import plot_oc_bars
 
         plot_oc_bars(summary, args.out / "oc_bars.png")
     except Exception as exc:  # noqa: BLE001 - a plotting problem must not lose the results

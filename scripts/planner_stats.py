@@ -36,7 +36,8 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
-from lmpc_bridge.evaluation.rows import parse_seeds, percentile
+from lmpc_bridge.evaluation.decisions import latency_row, token_rows
+from lmpc_bridge.evaluation.rows import parse_seeds
 from lmpc_bridge.evaluation.scenes import SceneSpec
 from lmpc_scripts.methods import build, prepare
 
@@ -83,19 +84,6 @@ class CapturingBackend:
         return reply
 
 
-class DecisionTap:
-    """PlannerLike that keeps the core's decisions."""
-
-    def __init__(self, core: Any, sink: Captured) -> None:
-        self.core, self.sink = core, sink
-
-    def on_observation(self, obs: Any) -> Any:
-        decision = self.core.on_observation(obs)
-        if decision is not None:
-            self.sink.decisions.append(decision)
-        return decision
-
-
 class Episodes:
     """One SumoSim for every episode of this process; the planner and controller of
     ``lmpc-rules`` from the method registry, its backend swapped for the one given."""
@@ -108,7 +96,7 @@ class Episodes:
 
     def run(self, *, family: str, seed: int, backend: Any, log_path: Optional[Path],
             max_time_s: float) -> Captured:
-        from lmpc_bridge.runner import run_episode
+        from lmpc_bridge.runner import RecordingPlanner, run_episode
 
         cap = Captured(family=family, seed=seed)
         # a fresh controller on the reset solver: replays must see the same solver
@@ -116,7 +104,8 @@ class Episodes:
                                  backend=CapturingBackend(backend, cap)))
         t0 = time.perf_counter()
         result = run_episode(self.sim, family=family, seed=seed, controller=wiring.controller,
-                             planner=DecisionTap(wiring.planner, cap), max_time_s=max_time_s)
+                             planner=RecordingPlanner(wiring.planner, cap.decisions),
+                             max_time_s=max_time_s)
         cap.wall_s = time.perf_counter() - t0
         cap.outcome = result.outcome
         return cap
@@ -160,38 +149,6 @@ class FakeChatServer:
     def close(self) -> None:
         self.server.shutdown()
         self.server.server_close()
-
-
-def latency_row(name: str, values: Sequence[float], **extra: Any) -> dict[str, Any]:
-    return {"backend": name, "calls": len(values),
-            "mean_s": round(statistics.fmean(values), 4) if values else math.nan,
-            "p95_s": round(percentile(values, 0.95), 4),
-            "median_s": round(statistics.median(values), 4) if values else math.nan,
-            **extra}
-
-
-def token_rows(captures: Sequence[Captured], tokenizer: Optional[Any]) -> list[dict[str, Any]]:
-    rows = []
-    for family in dict.fromkeys(c.family for c in captures):
-        reqs = [r for c in captures if c.family == family for r in c.requests
-                if r.retry_error is None]  # first asks only (re-asks quote the error)
-        for mode in ("normal", "emergency"):
-            sel = [r for r in reqs if r.mode == mode]
-            if not sel:
-                continue
-            est = [r.tokens_estimate for r in sel]
-            row: dict[str, Any] = {
-                "family": family, "mode": mode, "prompts": len(sel),
-                "agents_max": max(len(r.scene.agents) for r in sel),
-                "estimate_median": statistics.median(est), "estimate_max": max(est)}
-            if tokenizer is not None:
-                real = [len(tokenizer.tokenize(r.prompt.encode("utf-8"), add_bos=False))
-                        for r in sel]
-                row.update(smollm2_median=statistics.median(real), smollm2_max=max(real),
-                           chars_per_token=round(sum(len(r.prompt) for r in sel)
-                                                 / max(1, sum(real)), 2))
-            rows.append(row)
-    return rows
 
 
 def sample_requests(captures: Sequence[Captured], n: int) -> list[Any]:
@@ -304,7 +261,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     finally:
         episodes.close()
 
-    tokens = token_rows(captures, smollm2_tokenizer())
+    tokens = token_rows([(c.family, c.requests) for c in captures], smollm2_tokenizer())
     latency = []
     if "rules" in backends:
         latency.append(latency_row("rules (measured; reported 0)",

@@ -1,4 +1,4 @@
-"""Pictures (scripts/render.py): scene PNG, run PNG + GIF, O.C. bars. No ROS.
+"""Pictures (lmpc_bridge.render, scripts/render.py): scene PNG, run PNG + GIF, O.C. bars. No ROS.
 
 One short in-process run (usi seed 0, capped at a few seconds of sim time) is shared
 by the run tests; everything else uses the scene's map and hand-made records.
@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +16,9 @@ import pytest
 from PIL import Image
 
 from lmpc_bridge.record import EpisodeRecord, NearbyVehicle, StepRecord
-from lmpc_scripts import render
+from lmpc_bridge import render
+from lmpc_bridge.render import bars, draw, geometry
+from lmpc_scripts import render as render_cli
 
 RUN_CAP_S = 3.0
 
@@ -26,8 +30,8 @@ def work_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def short_run(work_dir: Path) -> render.RunData:
-    return render.run_in_process("usi", 0, "lmpc-rules", work_dir=work_dir,
-                                 max_time_s=RUN_CAP_S)
+    return render_cli.run_in_process("usi", 0, "lmpc-rules", work_dir=work_dir,
+                                     max_time_s=RUN_CAP_S)
 
 
 def _image(path: Path) -> Image.Image:
@@ -47,13 +51,13 @@ def test_scene_png(work_dir: Path, tmp_path: Path) -> None:
     assert img.format == "PNG"
     assert img.width >= 600 and img.height >= 600
     # the ego start box and the target area are drawn
-    assert _pixels_near(out, render._EGO) > 20
+    assert _pixels_near(out, draw.EGO) > 20
     assert _pixels_near(out, "#a6d8b3", tol=25) > 100  # target fill (green at alpha 0.35)
 
 
 def test_offset_polyline_is_parallel() -> None:
     line = [(0.0, 0.0), (10.0, 0.0), (10.0, 10.0)]
-    left = render.offset_polyline(line, 1.5)
+    left = geometry.offset_polyline(line, 1.5)
     assert np.allclose(left[0], (0.0, 1.5))
     assert np.allclose(left[-1], (8.5, 10.0))
     assert np.allclose(left[1], (8.5, 1.5))  # mitred corner of a right angle
@@ -117,9 +121,9 @@ def test_attended_agents_are_red(short_run: render.RunData, tmp_path: Path) -> N
     grey = render.render_run(_stub_run(short_run, attended=False), out=tmp_path / "b.png",
                              moments=2)
     # the legend shows a red swatch in both: compare, do not expect zero
-    assert _pixels_near(red, render._ATTENDED, tol=20) > _pixels_near(
-        grey, render._ATTENDED, tol=20) + 100
-    assert _pixels_near(grey, render._OTHER, tol=6) > _pixels_near(red, render._OTHER, tol=6)
+    assert _pixels_near(red, draw.ATTENDED, tol=20) > _pixels_near(
+        grey, draw.ATTENDED, tol=20) + 100
+    assert _pixels_near(grey, draw.OTHER, tol=6) > _pixels_near(red, draw.OTHER, tol=6)
 
 
 def test_key_moments_include_closest_approach_and_end(short_run: render.RunData) -> None:
@@ -145,10 +149,10 @@ def test_oc_bars(tmp_path: Path) -> None:
     out = render.plot_oc_bars(summary, tmp_path / "direct.png")
     img = _image(out)
     assert img.width >= 600 and img.height >= 400
-    assert _pixels_near(out, render._METHOD_COLOURS["lmpc-rules"], tol=10) > 500
+    assert _pixels_near(out, bars.METHOD_COLOURS["lmpc-rules"], tol=10) > 500
     # the CLI writes oc_bars.png next to summary.json
     (tmp_path / "summary.json").write_text(json.dumps(summary))
-    assert render.main(["bars", str(tmp_path)]) == 0
+    assert render_cli.main(["bars", str(tmp_path)]) == 0
     assert _image(tmp_path / "oc_bars.png").format == "PNG"
     with pytest.raises(render.RenderError):
         render.plot_oc_bars({"families": {}}, tmp_path / "none.png")
@@ -157,3 +161,20 @@ def test_oc_bars(tmp_path: Path) -> None:
 def test_load_run_missing_folder_is_actionable(tmp_path: Path) -> None:
     with pytest.raises(render.RenderError, match="episode.json"):
         render.load_run(tmp_path)
+
+
+def test_cli_refuses_an_unknown_method(tmp_path: Path) -> None:
+    with pytest.raises(render.RenderError, match="unknown method"):
+        render_cli.run_in_process("usi", 0, "lmpc-openai", work_dir=tmp_path)
+
+
+def test_the_bridge_stays_free_of_plotting_planner_and_mpc() -> None:
+    """``import lmpc_bridge`` loads no matplotlib; the pictures load neither the planner
+    nor the MPC (they come in through ``build``)."""
+    code = ("import sys, lmpc_bridge, lmpc_bridge.runner, lmpc_bridge.evaluation.scenes\n"
+            "assert 'matplotlib' not in sys.modules, 'matplotlib'\n"
+            "import lmpc_bridge.render\n"
+            "bad = sorted(m for m in sys.modules if m.split('.')[0] in "
+            "('lmpc_mpc', 'lmpc_llm_planner', 'lmpc_scripts', 'casadi'))\n"
+            "assert not bad, bad\n")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)

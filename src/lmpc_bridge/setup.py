@@ -7,7 +7,8 @@ package_name = "lmpc_bridge"
 setup(
     name=package_name,
     version="0.1.0",
-    packages=[package_name, package_name + ".scenarios", package_name + ".evaluation"],
+    packages=[package_name, package_name + ".scenarios", package_name + ".evaluation",
+              package_name + ".render"],
     package_data={package_name: ["config/*.yaml", "data/*"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
@@ -18,6 +19,8 @@ setup(
         "setuptools", "lmpc_msgs_py", "numpy>=1.26,<3", "libsumo>=1.20,<2",
         "eclipse-sumo>=1.20,<2", "pyyaml>=6,<7",
     ],
+    # lmpc_bridge.render (the pictures) is the only user of matplotlib / pillow
+    extras_require={"render": ["matplotlib>=3.8,<4", "pillow>=10"]},
     python_requires=">=3.10",
     zip_safe=False,
     maintainer="LanguageMPC ROS 2 maintainers",

@@ -32,6 +32,21 @@ class ControllerLike(Protocol):
     def compute(self, obs: Observation) -> Control: ...
 
 
+class RecordingPlanner:
+    """A planner that keeps every decision the planner it wraps makes (in ``decisions``,
+    or the list given), for the tools that look at them after the episode."""
+
+    def __init__(self, inner: PlannerLike, decisions: list[Decision] | None = None) -> None:
+        self.inner = inner
+        self.decisions: list[Decision] = [] if decisions is None else decisions
+
+    def on_observation(self, obs: Observation) -> Decision | None:
+        decision = self.inner.on_observation(obs)
+        if decision is not None:
+            self.decisions.append(decision)
+        return decision
+
+
 @dataclass(frozen=True)
 class EpisodeResult:
     """Outcome and metrics of one episode, with the record and the run's counters."""

@@ -11,7 +11,7 @@ import pytest
 from lmpc_msgs_py.messages import BezierTrajectory, Control, Decision
 from lmpc_msgs_py.observation import Observation
 
-from lmpc_bridge.runner import run_episode
+from lmpc_bridge.runner import RecordingPlanner, run_episode
 from lmpc_bridge.sim import SumoSim
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -80,13 +80,17 @@ class FlakyController(StandInController):
 def test_planner_decisions_and_controller_faults_are_counted(sim: SumoSim) -> None:
     planner = EveryNPlanner(25)
     ctl = FlakyController()
-    result = run_episode(sim, family="usi", seed=5, controller=ctl, planner=planner,
-                         max_time_s=8.0)
+    kept: list[Decision] = []
+    result = run_episode(sim, family="usi", seed=5, controller=ctl,
+                         planner=RecordingPlanner(planner, kept), max_time_s=8.0)
     assert result.outcome in ("timeout", "reached")
     steps = len(result.record.steps)
     assert planner.calls == steps
     assert result.decisions == len(ctl.decisions) == math.ceil(steps / 25)
     assert result.fallbacks == 1
+    # the recording wrapper kept exactly the decisions the controller was given
+    assert [d.decision_id for d in kept] == [d.decision_id for d in ctl.decisions]
+    assert len(kept) == result.decisions
     assert result.controller_errors == steps // 10
     assert result.metrics.late_controls == steps // 10
     late_steps = [s.step for s in result.record.steps if s.late]

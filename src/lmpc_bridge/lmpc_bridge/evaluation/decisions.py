@@ -1,4 +1,6 @@
-"""Planner figures from the scenes' decision logs (``decisions/*.jsonl`` of a run)."""
+"""Planner figures: from the scenes' decision logs (``decisions/*.jsonl`` of a run:
+``decision_stats``, ``stats_md``) and from the requests a tool kept along episodes
+(``token_rows``: tokens per decision; ``latency_row``: latency per backend call)."""
 from __future__ import annotations
 
 import json
@@ -6,7 +8,7 @@ import math
 import re
 import statistics
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable, Optional, Sequence
 
 from lmpc_bridge.evaluation.rows import percentile
 from lmpc_bridge.evaluation.table import markdown
@@ -66,3 +68,43 @@ def stats_md(stats: dict[str, dict[str, dict[str, Any]]]) -> str:
     return markdown(["Scenario", "Method", "Mode", "Decisions", "Fallbacks", "Valid 1st",
                      "Latency med / p95 / max s", "Tokens in med / max", "Tokens out med"],
                     rows)
+
+
+def latency_row(name: str, values: Sequence[float], **extra: Any) -> dict[str, Any]:
+    """Backend ``name``'s calls: count, mean, p95 and median latency in s (4 digits),
+    then ``extra``."""
+    return {"backend": name, "calls": len(values),
+            "mean_s": round(statistics.fmean(values), 4) if values else math.nan,
+            "p95_s": round(percentile(values, 0.95), 4),
+            "median_s": round(statistics.median(values), 4) if values else math.nan,
+            **extra}
+
+
+def token_rows(requests: Iterable[tuple[str, Sequence[Any]]],
+               tokenizer: Optional[Any]) -> list[dict[str, Any]]:
+    """Tokens per decision, one row a family (in order of appearance) and mode, from
+    (family, planner requests) pairs; first asks only (re-asks quote the error).
+
+    The planner's estimate (``tokens_estimate``) always; with a llama.cpp ``tokenizer``
+    also the real token count of the prompt text and the characters per token."""
+    pairs = list(requests)
+    rows = []
+    for family in dict.fromkeys(f for f, _ in pairs):
+        reqs = [r for f, sel in pairs if f == family for r in sel if r.retry_error is None]
+        for mode in ("normal", "emergency"):
+            sel = [r for r in reqs if r.mode == mode]
+            if not sel:
+                continue
+            est = [r.tokens_estimate for r in sel]
+            row: dict[str, Any] = {
+                "family": family, "mode": mode, "prompts": len(sel),
+                "agents_max": max(len(r.scene.agents) for r in sel),
+                "estimate_median": statistics.median(est), "estimate_max": max(est)}
+            if tokenizer is not None:
+                real = [len(tokenizer.tokenize(r.prompt.encode("utf-8"), add_bos=False))
+                        for r in sel]
+                row.update(smollm2_median=statistics.median(real), smollm2_max=max(real),
+                           chars_per_token=round(sum(len(r.prompt) for r in sel)
+                                                 / max(1, sum(real)), 2))
+            rows.append(row)
+    return rows
