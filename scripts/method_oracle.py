@@ -33,13 +33,13 @@ from typing import Any, Literal, Optional, Sequence
 
 from lmpc_bridge.evaluation.scenes import SceneSpec, Wiring
 from lmpc_bridge.metrics import W_ACC, W_DIST, W_TIME, step_ineff, step_pen_acc, step_pen_dist
+from lmpc_llm_planner.backends.ablation import baseline_encoding
 from lmpc_llm_planner.planner import PlannerCore
 from lmpc_llm_planner.scene import Scene
 from lmpc_llm_planner.schema import (
     ActionGuidance,
     EmergencyDecision,
     LlmDecision,
-    ScenarioEncoding,
     WeightAdjustment,
 )
 from lmpc_llm_planner.validation import apply_safety_floor, translate
@@ -119,9 +119,7 @@ def decision_options(scene: Scene, *, accel_intervals: Sequence[Any],
         if encoding == "rules" and isinstance(rules, LlmDecision):
             enc = rules.scenario_encoding.model_copy(update={"ego_trajectory": cand})
         else:
-            enc = ScenarioEncoding(
-                ego_trajectory=cand, attention=list(scene.agent_ids),
-                agent_trajectories={v.id: v.closest_heading_id for v in scene.agents})
+            enc = baseline_encoding(scene, cand)
         return Option(name, LlmDecision(
             reasoning=f"oracle option {name}", scenario_encoding=enc,
             action_guidance=ActionGuidance(accel_interval=accel, steer_interval=steer),

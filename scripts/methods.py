@@ -148,6 +148,21 @@ def build_lmpc(spec: SceneSpec) -> Wiring:
     return Wiring(planner, controller, lambda log: controller_cells(controller, log))
 
 
+def build_ablation(spec: SceneSpec) -> Wiring:
+    """``lmpc-rules-enc`` / ``lmpc-rules-aw``: the rules reasoner with only its scenario
+    encoding, or only its action bias and weights, kept (the paper's Table II;
+    ``lmpc_llm_planner.backends.ablation``)."""
+    from lmpc_llm_planner.backends.ablation import AblatedBackend
+
+    planner = make_planner("lmpc-rules", spec.instruction, log_path=spec.log_path,
+                           latency=spec.latency, planner_config=spec.planner_config,
+                           backend=spec.backend)
+    keep = {"lmpc-rules-enc": "encoding", "lmpc-rules-aw": "action"}[spec.method]
+    planner.backend = AblatedBackend(planner.backend, keep)  # type: ignore[arg-type]
+    controller = make_controller()
+    return Wiring(planner, controller, lambda log: controller_cells(controller, log))
+
+
 def build_replay(spec: SceneSpec) -> Wiring:
     """``lmpc-replay``: the recorded run's decision log of the scene answers, with the
     recording method's planner settings; the row notes how many prompts it answered."""
@@ -184,6 +199,11 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "(OPENAI_* env or --planner-config)", build_lmpc),
     Method("lmpc-replay", "LanguageMPC, decisions replayed from a finished run's logs "
            "(--replay-from, --replay-of)", build_replay),
+    Method("lmpc-rules-enc", "ablation: the rules reasoner's scenario encoding only "
+           "(attention, predictions, reference; bias neutral, weights normal)",
+           build_ablation),
+    Method("lmpc-rules-aw", "ablation: the rules reasoner's action bias and weights only "
+           "(baseline attention, predictions, route reference)", build_ablation),
     Method("lmpc-oracle", "the best of <= 32 decisions per planning instant, each rolled "
            "out 8 s in the scene itself (docs/ORACLE.md; tens of times slower)",
            "lmpc_scripts.method_oracle:build"),
