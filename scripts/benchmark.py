@@ -4,7 +4,8 @@
 The same logic objects as the nodes (DESIGN §1): ``lmpc_bridge.runner.run_episode``
 with the MPC controller and, for ``lmpc-*`` methods, the planner core. Writes
 ``results.csv`` (one row per scene and method), ``table.md`` (the paper's Table I
-layout), ``summary.json`` (per family and method, plus the relative O.C.
+layout; with an ablation method also ``table2.md``, the paper's Table II),
+``summary.json`` (per family and method, plus the relative O.C.
 change of each method against ``mpc``) and, for ``lmpc-*`` methods, each scene's
 decision log in ``decisions/<family>-<seed>-<method>.jsonl``.
 
@@ -41,7 +42,7 @@ from lmpc_bridge.evaluation.decisions import decision_stats, stats_md
 from lmpc_bridge.evaluation.replay import replay_check
 from lmpc_bridge.evaluation.rows import latency_cells, parse_seeds, read_rows, write_rows
 from lmpc_bridge.evaluation.scenes import RunSettings, run_scenes
-from lmpc_bridge.evaluation.table import aggregate, table_md
+from lmpc_bridge.evaluation.table import aggregate, table2_md, table_md
 from lmpc_scripts.methods import (
     LLM_METHODS,
     METHODS,
@@ -236,6 +237,10 @@ def write_outputs(args: argparse.Namespace, rows: list[dict[str, Any]], log_dir:
                  f"{partial['scenes_planned']} scenes.\n\n" + table)
     (args.out / "table.md").write_text(table)
     print(table)
+    ablation = table2_md(summary)
+    if ablation:  # an ablation method ran: the paper's Table II as well
+        (args.out / "table2.md").write_text(ablation)
+        print(ablation)
     if stats:
         (args.out / "decisions.md").write_text(stats_md(stats))
         print(stats_md(stats))

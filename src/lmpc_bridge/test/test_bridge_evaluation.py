@@ -6,7 +6,7 @@ import subprocess
 import sys
 
 from lmpc_bridge.evaluation.rows import latency_cells, parse_seeds
-from lmpc_bridge.evaluation.table import aggregate, table_md
+from lmpc_bridge.evaluation.table import aggregate, table2_md, table_md
 
 
 def test_the_evaluation_library_imports_neither_the_planner_nor_the_mpc() -> None:
@@ -49,3 +49,19 @@ def test_latency_cells_are_empty_for_the_baseline_and_where_nothing_is_simulated
     assert latency_cells("lmpc-rules", (2.5, 1.5)) == {"latency_s": 2.5,
                                                        "emergency_latency_s": 1.5}
     assert parse_seeds("0,3,5-7") == [0, 3, 5, 6, 7]
+
+
+def test_table_ii_lists_the_ablation_rows_in_the_papers_order() -> None:
+    rows = [_row(f, m, 0, oc) for f in ("usi", "rab") for m, oc in (
+        ("lmpc-rules", 80.0), ("lmpc-rules-aw", 85.0), ("mpc", 100.0),
+        ("lmpc-rules-enc", 95.0))]
+    rows += [_row("si", "mpc", 0, 100.0), _row("si", "lmpc-rules", 0, 90.0)]  # no ablation
+    lines = table2_md(aggregate(rows)).splitlines()
+    assert lines[0].startswith("| Scenario | O^dy | Â & W | Method |")
+    assert len(lines) == 2 + 8  # rab and usi, four rows each; si has no ablation run
+    assert [ln.split(" | ")[1:4] for ln in lines[2:6]] == [
+        ["×", "×", "mpc"], ["✓", "×", "lmpc-rules-enc"], ["×", "✓", "lmpc-rules-aw"],
+        ["✓", "✓", "lmpc-rules"]]
+    assert lines[2].startswith("| RAB |") and lines[6].startswith("| USI |")
+    assert lines[3].endswith("| 95.0 |")
+    assert table2_md(aggregate(rows[-2:])) == ""

@@ -63,3 +63,31 @@ def table_md(summary: dict[str, dict[str, dict[str, Any]]]) -> str:
                 "" if change is None or method == BASELINE else f"{change:+.1%}"])
     return markdown(["Scenario", "Method", "Coll.", "Fail", "Off route", "Ineff", "Time",
                      "Acc", "Dist", "O.C.", "vs MPC"], rows)
+
+
+ABLATION = (("mpc", False, False), ("lmpc-rules-enc", True, False),
+            ("lmpc-rules-aw", False, True), ("lmpc-rules", True, True))
+"""The paper's Table II rows: method, scenario encoding O^dy used, action bias & weights
+used."""
+
+
+def table2_md(summary: dict[str, dict[str, dict[str, Any]]]) -> str:
+    """The paper's Table II (ablation) for the families whose summary holds an ablation
+    method; the rows of ``ABLATION`` that ran. Empty when no ablation method ran."""
+    rows = []
+    for family, methods in summary.items():
+        if not any(m in methods for m in ("lmpc-rules-enc", "lmpc-rules-aw")):
+            continue
+        for method, enc, aw in ABLATION:
+            a = methods.get(method)
+            if a is None:
+                continue
+            rows.append([
+                family.upper(), "✓" if enc else "×", "✓" if aw else "×", method,
+                f"{a['collisions']}", f"{a['fails']}", f"{a['ineff']:.1f}",
+                f"{a['time_s']:.1f}", f"{a['pen_acc']:.2f}", f"{a['pen_dist']:.2f}",
+                f"{a['overall_cost']:.1f}"])
+    if not rows:
+        return ""
+    return markdown(["Scenario", "O^dy", "Â & W", "Method", "Coll.", "Fail", "Ineff", "Time",
+                     "Acc", "Dist", "O.C."], rows)
