@@ -20,6 +20,7 @@ down. Ray is an optional dependency (the ``ray`` extra): only this executor impo
 from __future__ import annotations
 
 import os
+import socket
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from typing import Any, Callable, Iterator, Optional, Sequence
 
@@ -109,6 +110,7 @@ class RayExecutor:
             kwargs.update(address="local", num_cpus=self.workers, num_gpus=0,
                           object_store_memory=RAY_OBJECT_STORE_BYTES)
         else:
+            _check_reachable(self.address)
             kwargs.update(address=self.address)
         try:
             ray.init(**kwargs)
@@ -154,6 +156,20 @@ class RayExecutor:
             # a local Ray stops with its driver; a cluster is only disconnected from
             self._ray.shutdown()
             self._ray = None
+
+
+def _check_reachable(address: str) -> None:
+    """A ``host:port`` address nobody listens at is named at once (``ray.init`` retries
+    it for minutes); other forms (``auto``, ``ray://...``) are left to Ray."""
+    host, sep, port = address.rpartition(":")
+    if not sep or "/" in address or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host, int(port)), timeout=5).close()
+    except OSError as exc:
+        raise ExecutorError(f"no Ray cluster at RAY_ADDRESS={address} ({exc}); start one "
+                            "with `ray start --head` or unset RAY_ADDRESS for a local Ray"
+                            ) from exc
 
 
 Executor = PoolExecutor | RayExecutor
