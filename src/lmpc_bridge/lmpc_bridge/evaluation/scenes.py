@@ -9,6 +9,7 @@ must be module-level functions (they are sent to the worker processes by name).
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -20,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
 
-from lmpc_bridge.evaluation.executors import make_executor
+from lmpc_bridge.evaluation.executors import Executor, make_executor
 from lmpc_bridge.evaluation.rows import (
     Latency,
     error_row,
@@ -191,24 +192,18 @@ def run_scene_shipped(method: str, family: str, seed: int, settings: RunSettings
     (None: the scene wrote none), for the driver to write into ``settings.log_dir``."""
     if settings.log_dir is None:
         return run_scene(method, family, seed, settings, build, prepare), None
-    local_dir = Path(tempfile.gettempdir()) / f"lmpc-logs-{os.getpid()}"
-    local_dir.mkdir(parents=True, exist_ok=True)
-    here = dataclasses.replace(settings, log_dir=str(local_dir))
-    row = run_scene(method, family, seed, here, build, prepare)
-    log = local_dir / scene_log_name(family, seed, method)
-    try:
-        return row, log.read_text()
-    except FileNotFoundError:
-        return row, None
-    finally:
-        log.unlink(missing_ok=True)
+    with tempfile.TemporaryDirectory(prefix="lmpc-logs-") as local_dir:
+        here = dataclasses.replace(settings, log_dir=local_dir)
+        row = run_scene(method, family, seed, here, build, prepare)
+        log = Path(local_dir) / scene_log_name(family, seed, method)
+        return row, log.read_text() if log.exists() else None
 
 
 def run_scenes(jobs: Sequence[tuple[str, str, int]], settings: RunSettings, *, build: Build,
                prepare: Optional[Callable[[], None]] = None, workers: int = 1,
                rows: list[dict[str, Any]], results_csv: Path,
                progress: Optional[Callable[[int, dict[str, Any], float], None]] = None,
-               executor: str = "pool") -> bool:
+               executor: str | Executor = "pool") -> bool:
     """Run ``jobs`` ((method, family, seed)) in ``workers`` processes, appending each
     finished row to ``rows`` and rewriting ``results_csv`` after each (a long run keeps
     every finished scene). ``progress(done, row, elapsed_s)`` after each row. Ctrl-C or
@@ -217,14 +212,16 @@ def run_scenes(jobs: Sequence[tuple[str, str, int]], settings: RunSettings, *, b
 
     ``executor``: ``pool`` (local processes) or ``ray`` (Ray tasks on a local Ray or the
     cluster at ``RAY_ADDRESS``; the decision logs come back to this process:
-    ``executors``). Raises ``ExecutorError`` when the executor cannot start."""
+    ``executors``), started and closed here; or an executor the caller started (e.g.
+    one Ray for several calls), left open. Raises ``ExecutorError`` when the executor
+    cannot start."""
     kept = len(rows)
     interrupted = False
-    ex = make_executor(executor, workers)
+    ex = make_executor(executor, workers) if isinstance(executor, str) else executor
     shipped = ex.name != "pool"
     fn: Callable[..., Any] = run_scene_shipped if shipped else run_scene
     calls = [(m, f, s, settings, build, prepare) for m, f, s in jobs]
-    with ex:
+    with ex if isinstance(executor, str) else contextlib.nullcontext(ex):
         t0 = time.monotonic()  # after the executor started: the ETA is about the scenes
         # SIGTERM ends a run as Ctrl-C does: the finished scenes are written, not lost
         # (set after the executor started: ray.init installs its own handler)
