@@ -192,7 +192,10 @@ def run_scene_shipped(method: str, family: str, seed: int, settings: RunSettings
     (None: the scene wrote none), for the driver to write into ``settings.log_dir``."""
     if settings.log_dir is None:
         return run_scene(method, family, seed, settings, build, prepare), None
-    with tempfile.TemporaryDirectory(prefix="lmpc-logs-") as local_dir:
+    # in the run's scratch folder (a worker killed mid-scene leaves it there, as its scenes)
+    scratch = Path(settings.work_dir)
+    scratch.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f"logs-{os.getpid()}-", dir=scratch) as local_dir:
         here = dataclasses.replace(settings, log_dir=local_dir)
         row = run_scene(method, family, seed, here, build, prepare)
         log = Path(local_dir) / scene_log_name(family, seed, method)
