@@ -115,8 +115,10 @@ class RayExecutor:
         try:
             ray.init(**kwargs)
         except Exception as exc:  # noqa: BLE001 - ConnectionError and Ray's own
+            hint = ("" if self.address is None or os.environ.get("RAY_AUTH_MODE") else
+                    " (a cluster with token authentication: set RAY_AUTH_MODE=token)")
             raise ExecutorError(f"ray.init({self.address or 'local'}): "
-                                f"{type(exc).__name__}: {exc}") from exc
+                                f"{type(exc).__name__}: {exc}{hint}") from exc
         self._ray = ray
         return self
 
