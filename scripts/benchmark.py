@@ -15,6 +15,7 @@ decision log in ``decisions/<family>-<seed>-<method>.jsonl``.
     benchmark.py --families lane --methods lmpc-rules --instruction "drive aggressively"
     benchmark.py --families eoa --methods lmpc-replay --replay-from runs/bench_local  # repeat
     benchmark.py --families si --methods lmpc-rules --decision-latency 2.5  # a slow LLM
+    benchmark.py --families usi --executor ray   # Ray tasks: local, or $RAY_ADDRESS
 
 ``--decision-latency S`` simulates a planner whose decisions take effect S seconds (sim
 time) after the observation they used, whatever the backend (the rules reasoner too);
@@ -39,6 +40,7 @@ from pathlib import Path
 from typing import Any, Optional, Sequence
 
 from lmpc_bridge.evaluation.decisions import decision_stats, stats_md
+from lmpc_bridge.evaluation.executors import EXECUTORS, ExecutorError
 from lmpc_bridge.evaluation.replay import replay_check
 from lmpc_bridge.evaluation.rows import latency_cells, parse_seeds, read_rows, write_rows
 from lmpc_bridge.evaluation.scenes import RunSettings, run_scenes
@@ -65,7 +67,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     help="comma-separated methods (--list-methods: what each is)")
     ap.add_argument("--list-methods", action="store_true",
                     help="print the registered methods, one line each, and exit")
-    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                    help="worker processes (with --executor ray and no RAY_ADDRESS: the "
+                         "CPUs of the local Ray; on a cluster, its CPUs decide)")
+    ap.add_argument("--executor", choices=EXECUTORS, default="pool",
+                    help="pool: local worker processes (default); ray: Ray tasks, on the "
+                         "cluster at $RAY_ADDRESS if set, else on a local Ray (needs the "
+                         "ray extra; README, 'Running on a Ray cluster')")
     ap.add_argument("--out", type=Path, default=Path("runs/bench"))
     ap.add_argument("--scene", type=Path,
                     help="run this scene description (YAML) instead of families")
@@ -178,9 +186,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
               f"{row['outcome']} t={row['time_s']}s O.C.={row['overall_cost']} "
               f"({row['wall_s']}s wall) elapsed {elapsed:.0f}s ETA {eta:.0f}s", flush=True)
 
-    interrupted = run_scenes(jobs, settings, build=build, prepare=prepare,
-                             workers=args.workers, rows=rows,
-                             results_csv=args.out / "results.csv", progress=progress)
+    try:
+        interrupted = run_scenes(jobs, settings, build=build, prepare=prepare,
+                                 workers=args.workers, rows=rows,
+                                 results_csv=args.out / "results.csv", progress=progress,
+                                 executor=args.executor)
+    except ExecutorError as exc:
+        print(f"benchmark: --executor {args.executor}: {exc}", file=sys.stderr)
+        return 2
     if interrupted:
         print(f"benchmark: interrupted after {len(rows)} of {len(jobs)} scenes; writing "
               f"those", file=sys.stderr, flush=True)
@@ -225,7 +238,8 @@ def write_outputs(args: argparse.Namespace, rows: list[dict[str, Any]], log_dir:
         {"families": summary, "planner": stats, "wall_time_s": round(wall_s, 1),
          "decision_latency_s": args.decision_latency,
          "emergency_latency_s": latency_cells("lmpc", latency)["emergency_latency_s"] or None,
-         "workers": args.workers, "seeds": args.seeds, "instruction": args.instruction,
+         "workers": args.workers, "executor": args.executor, "seeds": args.seeds,
+         "instruction": args.instruction,
          "partial": partial, "resumed_rows": resumed}, indent=2))
     table = table_md(summary)
     if args.decision_latency is not None or args.emergency_latency is not None:

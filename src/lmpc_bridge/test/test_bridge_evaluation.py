@@ -2,8 +2,14 @@
 and its Table I on a hand-made summary."""
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
+from concurrent.futures.process import BrokenProcessPool
+
+import pytest
+
+from lmpc_bridge.evaluation.executors import make_executor
 
 from lmpc_bridge.evaluation.rows import latency_cells, parse_seeds
 from lmpc_bridge.evaluation.table import aggregate, table2_md, table_md
@@ -13,12 +19,22 @@ def test_the_evaluation_library_imports_neither_the_planner_nor_the_mpc() -> Non
     code = ("import sys\n"
             "import lmpc_bridge.evaluation.scenes, lmpc_bridge.evaluation.rows\n"
             "import lmpc_bridge.evaluation.replay, lmpc_bridge.evaluation.table\n"
-            "import lmpc_bridge.evaluation.decisions\n"
+            "import lmpc_bridge.evaluation.decisions, lmpc_bridge.evaluation.executors\n"
             "print(sorted(m for m in sys.modules if m.startswith(('lmpc_mpc', "
-            "'lmpc_llm_planner', 'lmpc_scripts'))))\n")
+            "'lmpc_llm_planner', 'lmpc_scripts', 'ray'))))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout
     assert out.strip() == "[]", out
+
+
+def test_the_pool_executor_yields_every_result_and_a_dead_worker_as_its_exception() -> None:
+    with make_executor("pool", 2) as ex:
+        assert sorted(ex.results(abs, [(-3,), (2,), (-1,)])) == [(0, 3), (1, 2), (2, 1)]
+    with make_executor("pool", 1) as ex:
+        (index, result), = list(ex.results(os._exit, [(3,)]))
+    assert index == 0 and isinstance(result, BrokenProcessPool)
+    with pytest.raises(ValueError, match="unknown executor 'dask'; choose from pool, ray"):
+        make_executor("dask", 1)
 
 
 def _row(family: str, method: str, seed: int, oc: float, *, outcome: str = "reached",

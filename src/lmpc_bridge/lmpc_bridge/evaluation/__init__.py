@@ -2,6 +2,7 @@
 
 ``rows``       the ``results.csv`` row: columns, error rows, latency cells, read / write
 ``scenes``     one scene in a worker process and the parallel runner (resume, interrupt)
+``executors``  where the scenes run: the local process pool (default) or Ray tasks
 ``replay``     whether an ``lmpc-replay`` row repeats the recorded one
 ``table``      Table I: aggregation per family and method, and its Markdown
 ``decisions``  planner figures from the scenes' decision logs

@@ -1,5 +1,6 @@
 """Scenes of a method: one in a worker process (``run_scene``), many in parallel workers
-(``run_scenes``, which keeps every finished row through an interrupt).
+(``run_scenes``, which keeps every finished row through an interrupt), on the local
+process pool or Ray (``executors``).
 
 A method's planner and controller come from ``build(spec)``, a factory of the
 composition root (``scripts/methods.py``): this module knows neither the planner nor
@@ -8,16 +9,19 @@ must be module-level functions (they are sent to the worker processes by name).
 """
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import math
 import os
 import signal
 import statistics
+import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
 
+from lmpc_bridge.evaluation.executors import Executor, make_executor
 from lmpc_bridge.evaluation.rows import (
     Latency,
     error_row,
@@ -180,45 +184,87 @@ def _run_scene(method: str, family: str, seed: int, settings: RunSettings, build
     }
 
 
+def run_scene_shipped(method: str, family: str, seed: int, settings: RunSettings,
+                      build: Build, prepare: Optional[Callable[[], None]] = None
+                      ) -> tuple[dict[str, Any], Optional[str]]:
+    """``run_scene`` for a worker that may not share the driver's file system (a Ray
+    node): the decision log goes to a folder of this process and comes back as text
+    (None: the scene wrote none), for the driver to write into ``settings.log_dir``."""
+    if settings.log_dir is None:
+        return run_scene(method, family, seed, settings, build, prepare), None
+    # in the run's scratch folder (a worker killed mid-scene leaves it there, as its scenes)
+    scratch = Path(settings.work_dir)
+    scratch.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f"logs-{os.getpid()}-", dir=scratch) as local_dir:
+        here = dataclasses.replace(settings, log_dir=local_dir)
+        row = run_scene(method, family, seed, here, build, prepare)
+        log = Path(local_dir) / scene_log_name(family, seed, method)
+        return row, log.read_text() if log.exists() else None
+
+
 def run_scenes(jobs: Sequence[tuple[str, str, int]], settings: RunSettings, *, build: Build,
                prepare: Optional[Callable[[], None]] = None, workers: int = 1,
                rows: list[dict[str, Any]], results_csv: Path,
-               progress: Optional[Callable[[int, dict[str, Any], float], None]] = None
-               ) -> bool:
+               progress: Optional[Callable[[int, dict[str, Any], float], None]] = None,
+               executor: str | Executor = "pool") -> bool:
     """Run ``jobs`` ((method, family, seed)) in ``workers`` processes, appending each
     finished row to ``rows`` and rewriting ``results_csv`` after each (a long run keeps
     every finished scene). ``progress(done, row, elapsed_s)`` after each row. Ctrl-C or
     SIGTERM ends the run: the running scenes are abandoned, their workers killed, and
-    True is returned (``rows`` then holds what finished)."""
+    True is returned (``rows`` then holds what finished).
+
+    ``executor``: ``pool`` (local processes) or ``ray`` (Ray tasks on a local Ray or the
+    cluster at ``RAY_ADDRESS``; the decision logs come back to this process:
+    ``executors``), started and closed here; or an executor the caller started (e.g.
+    one Ray for several calls), left open. Raises ``ExecutorError`` when the executor
+    cannot start."""
     kept = len(rows)
-    t0 = time.monotonic()
     interrupted = False
-    # SIGTERM ends a run as Ctrl-C does: the finished scenes are written, not lost
-    signal.signal(signal.SIGTERM, _raise_interrupt)
-    pool = ProcessPoolExecutor(max_workers=max(1, workers))
-    try:
-        futures = {pool.submit(run_scene, m, f, s, settings, build, prepare): (m, f, s)
-                   for m, f, s in jobs}
-        for fut in as_completed(futures):
-            m, f, s = futures[fut]
-            try:
-                row = fut.result()
-            except Exception as exc:  # noqa: BLE001 - e.g. a worker process that died
-                row = error_row(m, f, s, f"{type(exc).__name__}: {exc}", settings.latency)
-            rows.append(row)
-            write_rows(results_csv, rows)
-            if progress is not None:
-                progress(len(rows) - kept, row, time.monotonic() - t0)
-    except KeyboardInterrupt:
-        interrupted = True
-        # the running scenes are abandoned: stop their workers (the executor has no
-        # public way to, and a worker may be minutes into an LLM episode)
-        for proc in list((getattr(pool, "_processes", None) or {}).values()):
-            proc.kill()
-    finally:
-        pool.shutdown(wait=not interrupted, cancel_futures=True)
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    ex = make_executor(executor, workers) if isinstance(executor, str) else executor
+    shipped = ex.name != "pool"
+    fn: Callable[..., Any] = run_scene_shipped if shipped else run_scene
+    calls = [(m, f, s, settings, build, prepare) for m, f, s in jobs]
+    with ex if isinstance(executor, str) else contextlib.nullcontext(ex):
+        t0 = time.monotonic()  # after the executor started: the ETA is about the scenes
+        # SIGTERM ends a run as Ctrl-C does: the finished scenes are written, not lost
+        # (set after the executor started: ray.init installs its own handler)
+        signal.signal(signal.SIGTERM, _raise_interrupt)
+        try:
+            for i, result in ex.results(fn, calls):
+                m, f, s = jobs[i]
+                if isinstance(result, BaseException):
+                    row = error_row(m, f, s, f"{type(result).__name__}: {result}",
+                                    settings.latency)
+                elif shipped:
+                    row, log = result
+                    _write_log(settings, m, f, s, log)
+                else:
+                    row = result
+                rows.append(row)
+                write_rows(results_csv, rows)
+                if progress is not None:
+                    progress(len(rows) - kept, row, time.monotonic() - t0)
+        except KeyboardInterrupt:
+            interrupted = True
+            # the running scenes are abandoned: stop their workers
+            ex.abort()
+        finally:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
     return interrupted
+
+
+def _write_log(settings: RunSettings, method: str, family: str, seed: int,
+               log: Optional[str]) -> None:
+    """A shipped decision log into ``settings.log_dir`` (none: a stale one is removed, as
+    a worker does before the scene)."""
+    if settings.log_dir is None:
+        return
+    path = Path(settings.log_dir) / scene_log_name(family, seed, method)
+    if log is None:
+        path.unlink(missing_ok=True)
+    else:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(log)
 
 
 def _raise_interrupt(signum: int, frame: Any) -> None:
