@@ -550,3 +550,16 @@ def write_mpc_config(path: Path, **overrides: Any) -> Path:
     data.update(overrides)
     path.write_text(yaml.safe_dump(data))
     return path
+
+
+def read_until(proc: "subprocess.Popen[str]", prefix: str) -> list[str]:
+    """The lines ``proc`` printed up to and including the first that starts with
+    ``prefix`` (asserted: the process printed it before it ended)."""
+    lines: list[str] = []
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        lines.append(line)
+        if line.startswith(prefix):
+            break
+    assert lines and lines[-1].startswith(prefix), "".join(lines)
+    return lines

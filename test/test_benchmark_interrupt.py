@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from graphkit import REPO, read_until
 
 
 def test_sigterm_writes_the_finished_scenes_and_stops_the_workers(tmp_path: Path) -> None:
@@ -24,12 +24,7 @@ def test_sigterm_writes_the_finished_scenes_and_stops_the_workers(tmp_path: Path
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     lines: list[str] = []
     try:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            lines.append(line)
-            if line.startswith("[1/4]"):
-                break
-        assert lines and lines[-1].startswith("[1/4]"), "".join(lines)
+        lines = read_until(proc, "[1/4]")
         # written before the whole run ends
         with open(out / "results.csv") as fh:
             assert len(list(csv.DictReader(fh))) == 1

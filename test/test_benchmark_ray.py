@@ -16,10 +16,11 @@ from typing import Any
 
 import pytest
 
+from graphkit import REPO, read_until
+
 pytest.importorskip("ray", reason="ray is not installed (the optional 'ray' extra: "
                                   "pip install -e '.[ray]')")
 
-REPO = Path(__file__).resolve().parents[1]
 TIMINGS = {"solve_ms_median", "solve_ms_p99", "compute_ms_median", "compute_ms_p99", "wall_s"}
 RAY_PROCESSES = ("gcs_server", "raylet", "ray::", "default_worker.py", "dashboard",
                  "runtime_env", "log_monitor", "monitor.py")
@@ -118,12 +119,7 @@ def test_sigterm_keeps_the_finished_rows_and_stops_ray(tmp_path: Path) -> None:
         text=True, start_new_session=True, env=_env())
     lines: list[str] = []
     try:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            lines.append(line)
-            if line.startswith("[1/4]"):
-                break
-        assert lines and lines[-1].startswith("[1/4]"), "".join(lines)
+        lines = read_until(proc, "[1/4]")
         proc.send_signal(signal.SIGTERM)
         rest, _ = proc.communicate(timeout=60)
     finally:
