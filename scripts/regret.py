@@ -52,11 +52,13 @@ from lmpc_scripts.method_oracle import (
 )
 
 COLUMNS = ("family", "seed", "t_s", "mode", "chosen", "best", "chosen_score", "best_score",
-           "regret", "parts", "options", "wall_s")
+           "regret", "parts", "options", "repeat_diff", "wall_s")
 """``chosen``: the option the chosen decision equals in content, ``chosen`` if none does
 (``none``: the planner decided nothing at the instant, the oracle's ``none``); ``best``:
 the best candidate (``chosen`` itself on a tie); ``parts``: what the best differs in
-(reference / bias / weights / attention, ``+``-joined; empty when regret is 0)."""
+(reference / bias / weights / attention, ``+``-joined; empty when regret is 0);
+``repeat_diff``: the chosen decision rolled out once more after the options, the
+difference of its score from the first rollout (0 when the branches repeat exactly)."""
 
 PARTS = ("reference", "bias", "weights", "attention")
 TIE_TOL = 1e-9
@@ -133,6 +135,8 @@ class RegretMixin:
         try:
             chosen_score = score_rollout(ep, snap, chosen, ctx.oracle, pricing)
             scores = [score_rollout(ep, snap, d, ctx.oracle, pricing) for d in decisions]
+            # the chosen one again, after the options: how exactly the branches repeat
+            again = score_rollout(ep, snap, chosen, ctx.oracle, pricing)
         finally:
             ep.restore(snap, planner=False)
             ep.discard(snap)
@@ -154,8 +158,14 @@ class RegretMixin:
             "family": ctx.family, "seed": ctx.seed, "t_s": round(scene.obs.stamp_s, 3),
             "mode": mode, "chosen": name, "best": best, "chosen_score": chosen_score,
             "best_score": best_score, "regret": regret, "parts": parts,
-            "options": len(options), "wall_s": round(time.perf_counter() - t0, 3)})
+            "options": len(options), "repeat_diff": _diff(again, chosen_score),
+            "wall_s": round(time.perf_counter() - t0, 3)})
         return chosen
+
+
+def _diff(a: float, b: float) -> float:
+    """|a - b|, 0 for two equal infinities."""
+    return 0.0 if a == b else abs(a - b)
 
 
 def _baseline_content(scene: Scene, space: Any) -> tuple:
@@ -202,9 +212,12 @@ def _float(v: Any) -> float:
 
 
 def regret_of_scene(run_dir: Path, row: dict[str, Any], *, sim: Any, oracle: OracleConfig,
-                    instruction: Optional[str] = None) -> tuple[list[dict[str, Any]],
-                                                                 dict[str, Any]]:
-    """The regret rows of one recorded scene and how the re-run compares with the row."""
+                    instruction: Optional[str] = None, build: Optional[Any] = None,
+                    max_time_s: float = FAMILY_MAX_TIME_S
+                    ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The regret rows of one recorded scene and how the re-run compares with the row.
+    ``build``: the wiring factory (default the method registry's; a test passes the
+    oracle with its own config); ``max_time_s``: the episode cap."""
     from lmpc_bridge.episode import Episode
 
     method, family, seed = row["method"], row["family"], int(row["seed"])
@@ -212,14 +225,14 @@ def regret_of_scene(run_dir: Path, row: dict[str, Any], *, sim: Any, oracle: Ora
     spec = SceneSpec(method=again, family=family, seed=seed, instruction=instruction,
                      replay=(str(run_dir.resolve()), method) if again == "lmpc-replay" else None,
                      latency=_latency(row))
-    wiring = methods.build(spec)
+    wiring = (build or methods.build)(spec)
     if wiring.planner is None:
         raise RegretError(f"{method} has no planner")
     ctx = _Context(family, seed, oracle)
     planner = tap(wiring.planner, ctx)
     t0 = time.perf_counter()
     episode = Episode(sim, family=family, seed=seed, controller=wiring.controller,
-                      planner=planner, max_time_s=FAMILY_MAX_TIME_S)
+                      planner=planner, max_time_s=max_time_s)
     episode.start()
     episode.run()
     m = episode.result().metrics
@@ -279,6 +292,7 @@ def summarise(rows: list[dict[str, Any]], scenes: list[dict[str, Any]]) -> dict[
             "regret_mean": _num(statistics.fmean(reg)) if reg else None,
             "share_zero": round(sum(x == 0.0 for x in reg) / len(reg), 4) if reg else None,
             "infinite": sum(math.isinf(x) for x in reg),
+            "repeat_diff_max": _num(max((r["repeat_diff"] for r in rs), default=0.0)),
             "regret_by_part": {k: round(v, 4) for k, v in sorted(by_part.items())},
             "worst": [{k: (_num(v) if isinstance(v, float) else v) for k, v in r.items()
                        if k != "wall_s"} for r in worst],
