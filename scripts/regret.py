@@ -317,11 +317,20 @@ def summary_md(summary: dict[str, Any], run_dir: Path) -> str:
             lines.append(f"| {r['seed']} | {r['t_s']} | {r['chosen']} | {r['best']} | "
                          f"{r['regret']} | {r['parts']} |")
     lines += ["", "Render one: `render.py run --family F --seed S --method lmpc-rules "
-              "--max-time-s T+8 --out x.png`.", "", "| scene | re-run repeats the row | "
-              "decisions (recorded) | wall s |", "|---|---|---|---|"]
+              "--max-time-s T+8 --out x.png`.", "",
+              "| scene | recorded | re-run | repeats the row | same instants | decisions "
+              "(recorded) | wall s |", "|---|---|---|---|---|---|---|"]
     for sc in summary["scenes"]:
-        lines.append(f"| {sc['family']} {sc['seed']} | {sc['repeats_recorded_row']} | "
-                     f"{sc['decisions']} ({sc['recorded_decisions']}) | {sc['wall_s']} |")
+        if "skipped" in sc:
+            lines.append(f"| {sc['family']} {sc['seed']} | {sc['skipped']} | | | | | |")
+            continue
+        rec, again = sc["recorded"], sc["rerun"]
+        lines.append(
+            f"| {sc['family']} {sc['seed']} | {rec['outcome']} {rec['time_s']} s, "
+            f"{rec['overall_cost']} | {again['outcome']} {again['time_s']} s, "
+            f"{again['overall_cost']} | {sc['repeats_recorded_row']} | "
+            f"{sc['same_instants']} | {sc['decisions']} ({sc['recorded_decisions']}) | "
+            f"{sc['wall_s']} |")
     return "\n".join(lines) + "\n"
 
 

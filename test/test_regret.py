@@ -15,6 +15,7 @@ from lmpc_scripts import method_oracle as mo
 
 SMALL = mo.OracleConfig(lookahead_s=3.0, max_options=8)
 """A smaller search than the default, to keep the tests short (the regret uses the same)."""
+SMALLER = mo.OracleConfig(lookahead_s=2.0, max_options=5)
 
 
 def test_the_regret_of_the_oracles_own_decisions_is_zero(tmp_path: Path) -> None:
@@ -50,7 +51,7 @@ def test_regret_of_a_two_scene_rules_run(tmp_path: Path) -> None:
     run = tmp_path / "run"
     assert benchmark.main(["--families", "usi,rab", "--seeds", "100", "--methods",
                            "lmpc-rules", "--workers", "1", "--out", str(run)]) == 0
-    summary = regret.run(run, oracle=SMALL, progress=False)
+    summary = regret.run(run, oracle=SMALLER, progress=False)
     out = run / "regret"
     for name in ("regret.csv", "summary.json", "regret.md", "regret.png"):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
@@ -71,7 +72,7 @@ def test_regret_of_a_two_scene_rules_run(tmp_path: Path) -> None:
         if math.isfinite(chosen):
             assert abs(reg - (chosen - best)) < 1e-5, r
         assert (r["parts"] == "") == (reg == 0.0), r
-        assert int(r["options"]) <= SMALL.max_options
+        assert int(r["options"]) <= SMALLER.max_options
     fam = summary["families"]["rab"]
     assert 0.0 <= fam["share_zero"] <= 1.0 and fam["decisions"] == rab["decisions"]
     assert fam["regret_median"] <= fam["regret_p90"]
