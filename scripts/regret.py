@@ -56,7 +56,9 @@ COLUMNS = ("family", "seed", "t_s", "mode", "chosen", "best", "chosen_score", "b
 """``chosen``: the option the chosen decision equals in content, ``chosen`` if none does
 (``none``: the planner decided nothing at the instant, the oracle's ``none``); ``best``:
 the best candidate (``chosen`` itself on a tie); ``parts``: what the best differs in
-(reference / bias / weights / attention, ``+``-joined; empty when regret is 0);
+(reference / bias / weights / attention, ``+``-joined; empty when regret is 0; ``other``
+when it has the chosen decision's content in all four, e.g. ``none`` against a decision
+with the baseline's content);
 ``repeat_diff``: the chosen decision rolled out once more after the options, the
 difference of its score from the first rollout (0 when the branches repeat exactly)."""
 
@@ -153,7 +155,9 @@ class RegretMixin:
             best = options[best_i].name
             regret = chosen_score - best_score
             other = _content(decisions[best_i], base)
-            parts = "+".join(p for p, a, b in zip(PARTS, key, other) if a != b) or "ttl"
+            # "other": the same four parts, e.g. no decision against a decision with the
+            # baseline's content, or a kept emergency trajectory
+            parts = "+".join(p for p, a, b in zip(PARTS, key, other) if a != b) or "other"
         ctx.rows.append({
             "family": ctx.family, "seed": ctx.seed, "t_s": round(scene.obs.stamp_s, 3),
             "mode": mode, "chosen": name, "best": best, "chosen_score": chosen_score,
