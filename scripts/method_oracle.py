@@ -42,7 +42,7 @@ from lmpc_llm_planner.schema import (
     LlmDecision,
     WeightAdjustment,
 )
-from lmpc_llm_planner.validation import apply_safety_floor, translate
+from lmpc_llm_planner.validation import DecisionMeta, apply_safety_floor, translate
 from lmpc_msgs_py.messages import Decision
 
 from lmpc_scripts import methods
@@ -225,10 +225,75 @@ def episode_score(steps: Sequence[Any], *, outcome: str, start_s: float, end_dis
     return (before_penalty + sum(step_penalty(s) for s in steps)) / n + W_TIME * total_s
 
 
+def oracle_meta(core: PlannerCore, scene: Scene, mode: Any, dt_s: float, *,
+                commit: bool) -> DecisionMeta:
+    """The bookkeeping of an oracle decision at this instant: the planner's next id (not
+    taken unless ``commit``: every rollout's decision gets the id the applied one will
+    get), source ``oracle``, the planner's latency model, in force until the next
+    instant's decision takes effect (``period_s + max(latency, dt)``)."""
+    n = core._n
+    meta = core._next_meta(scene, source="oracle", mode=mode,
+                           latency_s=getattr(core.backend, "reported_latency_s", 0.0),
+                           tokens_in=0, tokens_out=0)
+    if not commit:
+        core._n = n
+    return dataclasses.replace(meta, ttl_s=core.config.period_s + max(meta.latency_s, dt_s))
+
+
+def option_decision(core: PlannerCore, scene: Scene, wire: LlmDecision | EmergencyDecision,
+                    meta: DecisionMeta, previous: Optional[Decision]) -> Decision:
+    """``wire`` as ``core`` would hand it over: translated with ``meta`` (after
+    ``previous``) and the safety floor applied. Shared by the oracle and regret.py."""
+    cfg = core.config
+    decision = translate(wire, scene=scene, space=core.space, meta=meta, previous=previous)
+    return apply_safety_floor(
+        decision, scene=scene, ttc_s=cfg.safety_floor_ttc_s, dist_m=cfg.safety_floor_dist_m,
+        lookahead_m=cfg.lookahead_m, reach_s=cfg.safety_floor_reach_s).decision
+
+
+@dataclass(frozen=True)
+class Pricing:
+    """What the score of every rollout from one snapshot shares (:func:`score_rollout`)."""
+
+    speed: float
+    """The route speed the distance to go is priced at."""
+    episode_steps: float
+    """Estimated steps of the whole episode (``window`` scoring)."""
+    before_penalty: float
+    """Penalties of the steps before the snapshot (``episode`` scoring)."""
+    before_steps: int
+    dt_s: float
+
+    @classmethod
+    def at(cls, episode: Any, snap: Any, obs: Any, config: OracleConfig) -> "Pricing":
+        speed = route_speed_mps(obs, config.route_speed_cap_mps)
+        dt = episode.sim.dt_s
+        before = episode.sim.record().steps[:snap.step_index]
+        return cls(speed=speed,
+                   episode_steps=(obs.stamp_s + obs.ego.dist_to_target_m / speed) / dt + 1.0,
+                   before_penalty=sum(step_penalty(s) for s in before),
+                   before_steps=len(before), dt_s=dt)
+
+
+def score_rollout(episode: Any, snap: Any, decision: Optional[Decision], config: OracleConfig,
+                  pricing: Pricing) -> float:
+    """Roll ``decision`` out from ``snap`` (:func:`roll_out`) and score it with the
+    config's scoring (lower is better; +inf: collision, off route, error)."""
+    r = roll_out(episode, snap, decision, lookahead_s=config.lookahead_s)
+    if config.scoring == "episode":
+        return episode_score(r.steps, outcome=r.outcome, start_s=snap.time_s,
+                             end_dist_m=r.end_dist_m, route_speed=pricing.speed,
+                             before_penalty=pricing.before_penalty,
+                             before_steps=pricing.before_steps, dt_s=pricing.dt_s)
+    return window_score(r.steps, outcome=r.outcome, start_s=snap.time_s,
+                        end_dist_m=r.end_dist_m, route_speed=pricing.speed,
+                        episode_steps=pricing.episode_steps)
+
+
 class OraclePlanner(PlannerCore):
     """The planner core whose decisions are the best rolled-out option (module doc)."""
 
-    _SHARED = PlannerCore._SHARED + ("_episode", "oracle", "_before")
+    _SHARED = PlannerCore._SHARED + ("_episode", "oracle")
 
     def __init__(self, *args: Any, oracle: OracleConfig = OracleConfig(), **kwargs: Any
                  ) -> None:
@@ -239,7 +304,6 @@ class OraclePlanner(PlannerCore):
         """Wall time of each decision (its rollouts included)."""
         self.chosen: list[str] = []
         """The option chosen at each instant."""
-        self._before = (0.0, 0)
 
     def attach_episode(self, episode: Any) -> None:
         """The episode this planner branches (``lmpc_bridge.episode.Episode.start``)."""
@@ -261,17 +325,12 @@ class OraclePlanner(PlannerCore):
             encoding=self.oracle.encoding, max_options=self.oracle.max_options)
         ep = self._episode
         snap = ep.snapshot()
+        pricing = Pricing.at(ep, snap, scene.obs, self.oracle)
         obs = scene.obs
-        speed = route_speed_mps(obs, self.oracle.route_speed_cap_mps)
-        dt = ep.sim.dt_s
-        episode_steps = (obs.stamp_s + obs.ego.dist_to_target_m / speed) / dt + 1.0
-        before = ep.sim.record().steps[:snap.step_index]
-        self._before = (sum(step_penalty(s) for s in before), len(before))
-        scores: list[float] = []
         try:
-            for opt in options:
-                decision = None if opt.wire is None else self._decision(scene, mode, opt.wire)
-                scores.append(self._rollout(snap, decision, speed, episode_steps))
+            scores = [score_rollout(ep, snap, None if opt.wire is None else
+                                    self._decision(scene, mode, opt.wire), self.oracle,
+                                    pricing) for opt in options]
         finally:
             ep.restore(snap, planner=False)
             ep.discard(snap)
@@ -302,32 +361,8 @@ class OraclePlanner(PlannerCore):
                   commit: bool = False) -> Decision:
         """``wire`` as the planner would hand it over (translated, safety floor applied),
         in force from its latency on until the next instant's decision takes effect."""
-        n = self._n
-        meta = self._next_meta(scene, source="oracle", mode=mode,
-                               latency_s=getattr(self.backend, "reported_latency_s", 0.0),
-                               tokens_in=0, tokens_out=0)
-        if not commit:
-            self._n = n  # a rollout's decision takes the id the applied one will get
-        meta = dataclasses.replace(meta, ttl_s=self.config.period_s + max(
-            meta.latency_s, self._episode.sim.dt_s))
-        decision = translate(wire, scene=scene, space=self.space, meta=meta,
-                             previous=self.last_decision)
-        return apply_safety_floor(
-            decision, scene=scene, ttc_s=self.config.safety_floor_ttc_s,
-            dist_m=self.config.safety_floor_dist_m, lookahead_m=self.config.lookahead_m,
-            reach_s=self.config.safety_floor_reach_s).decision
-
-    def _rollout(self, snap: Any, decision: Optional[Decision], speed: float,
-                 episode_steps: float) -> float:
-        r = roll_out(self._episode, snap, decision, lookahead_s=self.oracle.lookahead_s)
-        if self.oracle.scoring == "episode":
-            return episode_score(r.steps, outcome=r.outcome, start_s=snap.time_s,
-                                 end_dist_m=r.end_dist_m, route_speed=speed,
-                                 before_penalty=self._before[0],
-                                 before_steps=self._before[1], dt_s=self._episode.sim.dt_s)
-        return window_score(r.steps, outcome=r.outcome, start_s=snap.time_s,
-                            end_dist_m=r.end_dist_m, route_speed=speed,
-                            episode_steps=episode_steps)
+        meta = oracle_meta(self, scene, mode, self._episode.sim.dt_s, commit=commit)
+        return option_decision(self, scene, wire, meta, self.last_decision)
 
     def wall_summary(self) -> dict[str, float]:
         """Median / p95 / count of the decisions' wall times."""

@@ -1,0 +1,475 @@
+#!/usr/bin/env python3
+"""Regret of a recorded run: at every decision of a finished ``lmpc-*`` benchmark run, how
+much better the best option of the oracle's decision space would have done (docs/ORACLE.md,
+"Regret").
+
+    regret.py RUN_DIR [--method lmpc-rules] [--out RUN_DIR/regret] [--lookahead-s 8]
+
+Each scene of ``RUN_DIR/results.csv`` is run again in-process with the recorded method
+(``lmpc-rules`` and ``lmpc-oracle`` are deterministic: the same method repeats the run;
+an LLM method is repeated by ``lmpc-replay`` from ``RUN_DIR/decisions/``), with the run's
+simulated latency and instruction. At every decision instant the episode is snapshotted
+after the planner decided (``lmpc_bridge.episode``), the chosen decision and every option
+of ``method_oracle.decision_options`` are rolled out for the oracle's lookahead with the
+oracle's score (``method_oracle.score_rollout``), the episode is restored and goes on
+with the chosen decision. Regret = chosen score - best score (O.C. units, >= 0: the
+chosen decision is one of the candidates). Options take the chosen decision's
+bookkeeping (id, latency, time to live): they differ from it only in content.
+
+Writes OUT/regret.csv (one row per decision), OUT/summary.json, OUT/regret.md and
+OUT/regret.png (regret over time of the scene with the largest total regret, and the
+per-family distribution). Deterministic: the same run gives the same files (but the
+wall-time cells).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import statistics
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+from lmpc_bridge.evaluation.rows import percentile, scene_log_name
+from lmpc_bridge.evaluation.scenes import FAMILY_MAX_TIME_S, SceneSpec
+from lmpc_llm_planner.scene import Scene
+from lmpc_llm_planner.validation import DecisionMeta
+from lmpc_msgs_py.messages import Decision
+
+from lmpc_scripts import methods
+from lmpc_scripts.method_oracle import (
+    OracleConfig,
+    Pricing,
+    decision_options,
+    option_decision,
+    oracle_meta,
+    score_rollout,
+)
+
+COLUMNS = ("family", "seed", "t_s", "mode", "chosen", "best", "chosen_score", "best_score",
+           "regret", "parts", "options", "repeat_diff", "wall_s")
+"""``chosen``: the option the chosen decision equals in content, ``chosen`` if none does
+(``none``: the planner decided nothing at the instant, the oracle's ``none``); ``best``:
+the best candidate (``chosen`` itself on a tie); ``parts``: what the best differs in
+(reference / bias / weights / attention, ``+``-joined; empty when regret is 0; ``other``
+when it has the chosen decision's content in all four, e.g. ``none`` against a decision
+with the baseline's content);
+``repeat_diff``: the chosen decision rolled out once more after the options, the
+difference of its score from the first rollout (0 when the branches repeat exactly)."""
+
+PARTS = ("reference", "bias", "weights", "attention")
+TIE_TOL = 1e-9
+"""Scores closer than this count as a tie (regret 0)."""
+
+
+class RegretError(Exception):
+    """A run folder this tool cannot use (one-line message)."""
+
+
+@dataclass
+class _Context:
+    """The regret state a wrapped planner carries (shared, never snapshotted)."""
+
+    family: str
+    seed: int
+    oracle: OracleConfig
+    episode: Any = None
+    rows: list[dict[str, Any]] = field(default_factory=list)
+
+
+def _content(d: Optional[Decision], baseline: tuple) -> tuple:
+    """(reference, bias, weights, attention) of a decision; None: the baseline's."""
+    if d is None:
+        return baseline
+    return (d.ego_trajectory.candidate_id, (d.accel_interval, d.steer_interval),
+            d.weights.model_dump(), (tuple(sorted(d.attention)), tuple(sorted(
+                (p.agent_id, p.trajectory.candidate_id) for p in d.agent_predictions))))
+
+
+class RegretMixin:
+    """Mixed into the recorded method's planner class (:func:`tap`): its ``_decide`` is
+    the method's own, followed by the rollouts of the chosen decision and every option
+    from a snapshot taken after it (the episode then goes on with the chosen one)."""
+
+    _regret: _Context
+
+    def attach_episode(self, episode: Any) -> None:
+        self._regret.episode = episode
+        parent = getattr(super(), "attach_episode", None)
+        if parent is not None:
+            parent(episode)
+
+    def _decide(self, scene: Scene, mode: Any) -> Optional[Decision]:
+        core: Any = self
+        ctx = self._regret
+        if ctx.episode is None:
+            raise RuntimeError("regret needs the episode (Episode.attach_episode)")
+        previous = core.last_decision
+        rules = None
+        if core.backend.name == "rules":  # the rules' answer is an option, as in the oracle
+            rules = core._ask(scene, mode, "all", {}, [])
+        chosen: Optional[Decision] = super()._decide(scene, mode)  # type: ignore[misc]
+        t0 = time.perf_counter()
+        ep = ctx.episode
+        dt = ep.sim.dt_s
+        space = core.space
+        options = decision_options(
+            scene, accel_intervals=space.accel_intervals_mps2,
+            steer_intervals=space.steer_intervals_rad, neutral_accel=space.neutral_accel_index,
+            neutral_steer=space.neutral_steer_index, rules=rules,
+            encoding=ctx.oracle.encoding, max_options=ctx.oracle.max_options)
+        if chosen is not None:
+            meta = DecisionMeta(
+                decision_id=chosen.decision_id, seq=chosen.seq, source=chosen.source,
+                mode=chosen.mode, latency_s=chosen.latency_s, tokens_in=chosen.tokens_in,
+                tokens_out=chosen.tokens_out, ttl_s=chosen.ttl_s)
+        else:
+            meta = oracle_meta(core, scene, mode, dt, commit=False)
+        decisions = [None if o.wire is None else option_decision(core, scene, o.wire, meta,
+                                                                 previous) for o in options]
+        snap = ep.snapshot()
+        pricing = Pricing.at(ep, snap, scene.obs, ctx.oracle)
+        try:
+            chosen_score = score_rollout(ep, snap, chosen, ctx.oracle, pricing)
+            scores = [score_rollout(ep, snap, d, ctx.oracle, pricing) for d in decisions]
+            # the chosen one again, after the options: how exactly the branches repeat
+            again = score_rollout(ep, snap, chosen, ctx.oracle, pricing)
+        finally:
+            ep.restore(snap, planner=False)
+            ep.discard(snap)
+        base = _baseline_content(scene, space)
+        key = _content(chosen, base)
+        name = next((o.name for o, d in zip(options, decisions)
+                     if (d is None) == (chosen is None) and _content(d, base) == key),
+                    "chosen")
+        best_i = min(range(len(options)), key=lambda i: (scores[i], i))
+        best_score = scores[best_i]
+        if not best_score < chosen_score - TIE_TOL:  # chosen is (one of) the best
+            best, best_score, regret, parts = name, chosen_score, 0.0, ""
+        else:
+            best = options[best_i].name
+            regret = chosen_score - best_score
+            other = _content(decisions[best_i], base)
+            # "other": the same four parts, e.g. no decision against a decision with the
+            # baseline's content, or a kept emergency trajectory
+            parts = "+".join(p for p, a, b in zip(PARTS, key, other) if a != b) or "other"
+        ctx.rows.append({
+            "family": ctx.family, "seed": ctx.seed, "t_s": round(scene.obs.stamp_s, 3),
+            "mode": mode, "chosen": name, "best": best, "chosen_score": chosen_score,
+            "best_score": best_score, "regret": regret, "parts": parts,
+            "options": len(options), "repeat_diff": _diff(again, chosen_score),
+            "wall_s": round(time.perf_counter() - t0, 3)})
+        return chosen
+
+
+def _diff(a: float, b: float) -> float:
+    """|a - b|, 0 for two equal infinities."""
+    return 0.0 if a == b else abs(a - b)
+
+
+def _baseline_content(scene: Scene, space: Any) -> tuple:
+    """What no decision amounts to: the route, neutral bias, normal weights, every offered
+    agent with its closest-heading prediction (the planner's fallback)."""
+    from lmpc_msgs_py.messages import WeightLevels
+
+    return (scene.route_candidate_id, (space.neutral_accel_index, space.neutral_steer_index),
+            WeightLevels().model_dump(),
+            (tuple(sorted(scene.agent_ids)),
+             tuple(sorted((v.id, v.closest_heading_id) for v in scene.agents))))
+
+
+def tap(planner: Any, ctx: _Context) -> Any:
+    """``planner`` (a ``PlannerCore`` or subclass, e.g. the oracle's) with the regret
+    rollouts after each of its decisions: its class becomes a subclass mixing in
+    :class:`RegretMixin`; its state is untouched."""
+    cls = type(planner)
+    planner.__class__ = type(f"Regret{cls.__name__}", (RegretMixin, cls),
+                             {"_SHARED": cls._SHARED + ("_regret",)})
+    planner._regret = ctx
+    return planner
+
+
+# --- one scene -------------------------------------------------------------------------
+def rerun_method(method: str) -> str:
+    """The method that repeats a recorded ``method`` in-process."""
+    if method in ("lmpc-rules", "lmpc-oracle"):
+        return method
+    if method in methods.LLM_METHODS:
+        return "lmpc-replay"
+    raise RegretError(f"cannot take the regret of {method!r}: one of lmpc-rules, lmpc-oracle, "
+                      f"{', '.join(m for m in methods.LLM_METHODS if m != 'lmpc-rules')}")
+
+
+def _latency(row: dict[str, Any]) -> tuple[Optional[float], Optional[float]]:
+    def cell(v: Any) -> Optional[float]:
+        return None if v in ("", None) or (isinstance(v, float) and math.isnan(v)) else float(v)
+    return (cell(row.get("latency_s")), cell(row.get("emergency_latency_s")))
+
+
+def _float(v: Any) -> float:
+    return float(v) if v not in ("", None) else math.nan
+
+
+def regret_of_scene(run_dir: Path, row: dict[str, Any], *, sim: Any, oracle: OracleConfig,
+                    instruction: Optional[str] = None, build: Optional[Any] = None,
+                    max_time_s: float = FAMILY_MAX_TIME_S
+                    ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The regret rows of one recorded scene and how the re-run compares with the row.
+    ``build``: the wiring factory (default the method registry's; a test passes the
+    oracle with its own config); ``max_time_s``: the episode cap."""
+    from lmpc_bridge.episode import Episode
+
+    method, family, seed = row["method"], row["family"], int(row["seed"])
+    again = rerun_method(method)
+    spec = SceneSpec(method=again, family=family, seed=seed, instruction=instruction,
+                     replay=(str(run_dir.resolve()), method) if again == "lmpc-replay" else None,
+                     latency=_latency(row))
+    wiring = (build or methods.build)(spec)
+    if wiring.planner is None:
+        raise RegretError(f"{method} has no planner")
+    ctx = _Context(family, seed, oracle)
+    planner = tap(wiring.planner, ctx)
+    t0 = time.perf_counter()
+    episode = Episode(sim, family=family, seed=seed, controller=wiring.controller,
+                      planner=planner, max_time_s=max_time_s)
+    episode.start()
+    episode.run()
+    m = episode.result().metrics
+    outcome = episode.sim.outcome
+    recorded = recorded_instants(run_dir / "decisions" / scene_log_name(family, seed, method))
+    times = [r["t_s"] for r in ctx.rows]
+    scene = {
+        "family": family, "seed": seed, "method": method, "rerun_as": again,
+        "recorded": {"outcome": row["outcome"], "time_s": _float(row["time_s"]),
+                     "overall_cost": _float(row["overall_cost"])},
+        "rerun": {"outcome": outcome, "time_s": round(m.time_s, 3),
+                  "overall_cost": round(m.overall_cost, 4)},
+        "decisions": len(ctx.rows), "recorded_decisions": None if recorded is None
+        else len(recorded),
+        "wall_s": round(time.perf_counter() - t0, 2)}
+    scene["repeats_recorded_row"] = (
+        outcome == row["outcome"] and abs(round(m.time_s, 3) - _float(row["time_s"])) < 1e-6
+        and abs(m.overall_cost - _float(row["overall_cost"])) <= 2e-4)
+    scene["same_instants"] = recorded is not None and [round(t, 3) for t in recorded] == times
+    return ctx.rows, scene
+
+
+def recorded_instants(log: Path) -> Optional[list[float]]:
+    """Stamps of the decision instants of a recorded decision log (None: no log)."""
+    if not log.is_file():
+        return None
+    out = []
+    for line in log.read_text(encoding="utf-8").splitlines():
+        rec = json.loads(line)
+        if rec.get("kind") == "oracle" or ("decision_id" in rec and "kind" not in rec):
+            out.append(float(rec["stamp_s"]))
+    return out
+
+
+# --- summary ---------------------------------------------------------------------------
+def _num(x: float) -> Any:
+    return "inf" if math.isinf(x) else round(x, 6)
+
+
+def summarise(rows: list[dict[str, Any]], scenes: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per family: decisions, median / p90 / mean regret, share at 0, regret by part, the
+    ten worst decisions."""
+    fams: dict[str, Any] = {}
+    for fam in sorted({r["family"] for r in rows} | {s["family"] for s in scenes}):
+        rs = [r for r in rows if r["family"] == fam]
+        reg = [r["regret"] for r in rs]
+        by_part: dict[str, float] = {}
+        for r in rs:
+            if r["regret"] > 0.0 and math.isfinite(r["regret"]):
+                for p in r["parts"].split("+"):
+                    by_part[p] = by_part.get(p, 0.0) + r["regret"]
+        worst = sorted(rs, key=lambda r: (-r["regret"], r["seed"], r["t_s"]))[:10]
+        fams[fam] = {
+            "decisions": len(rs),
+            "regret_median": _num(statistics.median(reg)) if reg else None,
+            "regret_p90": _num(percentile(reg, 0.9)) if reg else None,
+            "regret_mean": _num(statistics.fmean(reg)) if reg else None,
+            "share_zero": round(sum(x == 0.0 for x in reg) / len(reg), 4) if reg else None,
+            "infinite": sum(math.isinf(x) for x in reg),
+            "repeat_diff_max": _num(max((r["repeat_diff"] for r in rs), default=0.0)),
+            "regret_by_part": {k: round(v, 4) for k, v in sorted(by_part.items())},
+            "worst": [{k: (_num(v) if isinstance(v, float) else v) for k, v in r.items()
+                       if k != "wall_s"} for r in worst],
+        }
+    return {"families": fams, "scenes": scenes}
+
+
+def summary_md(summary: dict[str, Any], run_dir: Path) -> str:
+    lines = [f"# Regret of {run_dir}", "",
+             "Regret = chosen decision's rollout score - best option's (O.C. units; "
+             "docs/ORACLE.md, \"Regret\").", "",
+             "| family | decisions | median | p90 | mean | share 0 | by part |",
+             "|---|---|---|---|---|---|---|"]
+    for fam, s in summary["families"].items():
+        parts = ", ".join(f"{k} {v}" for k, v in s["regret_by_part"].items())
+        lines.append(f"| {fam} | {s['decisions']} | {s['regret_median']} | {s['regret_p90']} "
+                     f"| {s['regret_mean']} | {s['share_zero']} | {parts} |")
+    for fam, s in summary["families"].items():
+        lines += ["", f"## {fam}: the worst decisions", "",
+                  "| seed | t (s) | chosen | best | regret | parts |", "|---|---|---|---|---|---|"]
+        for r in s["worst"]:
+            lines.append(f"| {r['seed']} | {r['t_s']} | {r['chosen']} | {r['best']} | "
+                         f"{r['regret']} | {r['parts']} |")
+    lines += ["", "Render one: `render.py run --family F --seed S --method lmpc-rules "
+              "--max-time-s T+8 --out x.png`.", "",
+              "| scene | recorded | re-run | repeats the row | same instants | decisions "
+              "(recorded) | wall s |", "|---|---|---|---|---|---|---|"]
+    for sc in summary["scenes"]:
+        if "skipped" in sc:
+            lines.append(f"| {sc['family']} {sc['seed']} | {sc['skipped']} | | | | | |")
+            continue
+        rec, again = sc["recorded"], sc["rerun"]
+        lines.append(
+            f"| {sc['family']} {sc['seed']} | {rec['outcome']} {rec['time_s']} s, "
+            f"{rec['overall_cost']} | {again['outcome']} {again['time_s']} s, "
+            f"{again['overall_cost']} | {sc['repeats_recorded_row']} | "
+            f"{sc['same_instants']} | {sc['decisions']} ({sc['recorded_decisions']}) | "
+            f"{sc['wall_s']} |")
+    return "\n".join(lines) + "\n"
+
+
+def plot(rows: list[dict[str, Any]], out: Path) -> Optional[Path]:
+    """Regret over time of the scene with the largest finite total regret, and the
+    per-family distribution (a strip of every decision's regret)."""
+    if not rows:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    totals: dict[tuple[str, int], float] = {}
+    for r in rows:
+        if math.isfinite(r["regret"]):
+            totals[(r["family"], r["seed"])] = totals.get((r["family"], r["seed"]), 0.0) \
+                + r["regret"]
+    scene = max(sorted(totals), key=lambda k: totals[k]) if totals else \
+        (rows[0]["family"], rows[0]["seed"])
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
+    rs = [r for r in rows if (r["family"], r["seed"]) == scene and math.isfinite(r["regret"])]
+    a.stem([r["t_s"] for r in rs], [r["regret"] for r in rs])
+    a.set(xlabel="sim time (s)", ylabel="regret (O.C. units)",
+          title=f"{scene[0]} seed {scene[1]}: regret per decision")
+    fams = sorted({r["family"] for r in rows})
+    for i, fam in enumerate(fams):
+        vals = sorted(r["regret"] for r in rows if r["family"] == fam
+                      and math.isfinite(r["regret"]))
+        xs = [i + 0.3 * ((k % 7) / 6.0 - 0.5) for k in range(len(vals))]
+        b.scatter(xs, vals, s=10, alpha=0.6)
+        if vals:
+            b.hlines([statistics.median(vals), percentile(vals, 0.9)], i - 0.25, i + 0.25,
+                     colors=["k", "r"])
+    b.set_xticks(range(len(fams)), fams)
+    b.set(ylabel="regret (O.C. units)", title="per family (black median, red p90)")
+    fig.tight_layout()
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out
+
+
+def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=COLUMNS)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (_num(v) if isinstance(v, float) and k != "t_s" else v)
+                        for k, v in r.items()})
+
+
+# --- command line ----------------------------------------------------------------------
+def _pick_method(rows: list[dict[str, Any]], wanted: Optional[str]) -> str:
+    found = sorted({r["method"] for r in rows if r["method"].startswith("lmpc-")
+                    and r["method"] != "lmpc-replay"})
+    if wanted is not None:
+        if wanted not in found:
+            raise RegretError(f"no {wanted} rows in the run (it has {', '.join(found) or 'none'})")
+        return wanted
+    if len(found) != 1:
+        raise RegretError(f"the run has {len(found)} lmpc-* methods ({', '.join(found)}): "
+                          "name one with --method")
+    return found[0]
+
+
+def run(run_dir: Path, *, method: Optional[str] = None, out: Optional[Path] = None,
+        oracle: OracleConfig = OracleConfig(), progress: bool = True) -> dict[str, Any]:
+    """The regret of every scene of ``run_dir`` (one method); writes the files to ``out``
+    (default ``run_dir/regret``) and returns the summary."""
+    from lmpc_bridge.sim import SumoSim
+
+    csv_path = run_dir / "results.csv"
+    if not csv_path.is_file():
+        raise RegretError(f"{csv_path} not found: pass a finished benchmark.py --out folder")
+    with csv_path.open(newline="") as fh:
+        raw = list(csv.DictReader(fh))
+    method = _pick_method(raw, method)
+    rerun_method(method)
+    recorded = [dict(r, seed=int(r["seed"])) for r in raw if r["method"] == method]
+    instruction = None
+    if (run_dir / "summary.json").is_file():
+        instruction = json.loads((run_dir / "summary.json").read_text()).get("instruction")
+    out = out or run_dir / "regret"
+    out.mkdir(parents=True, exist_ok=True)
+    methods.prepare()
+    sim = SumoSim(work_dir=Path(tempfile.mkdtemp(prefix="lmpc-regret-")))
+    rows: list[dict[str, Any]] = []
+    scenes: list[dict[str, Any]] = []
+    t0 = time.monotonic()
+    try:
+        for i, row in enumerate(sorted(recorded, key=lambda r: (r["family"], r["seed"]))):
+            if row["outcome"] == "error":
+                scenes.append({"family": row["family"], "seed": row["seed"],
+                               "skipped": f"error row: {row['detail']}"})
+                continue
+            got, scene = regret_of_scene(run_dir, row, sim=sim, oracle=oracle,
+                                         instruction=instruction)
+            rows += got
+            scenes.append(scene)
+            if progress:
+                print(f"[{i + 1}/{len(recorded)}] {row['family']} seed {row['seed']}: "
+                      f"{len(got)} decisions, regret sum "
+                      f"{sum(r['regret'] for r in got):.3f}, repeats row "
+                      f"{scene['repeats_recorded_row']} ({scene['wall_s']} s; elapsed "
+                      f"{time.monotonic() - t0:.0f} s)", flush=True)
+    finally:
+        sim.close()
+    summary = summarise(rows, scenes)
+    summary.update(run_dir=str(run_dir), method=method, lookahead_s=oracle.lookahead_s,
+                   wall_time_s=round(time.monotonic() - t0, 1))
+    write_csv(out / "regret.csv", rows)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    (out / "regret.md").write_text(summary_md(summary, run_dir))
+    plot(rows, out / "regret.png")
+    return summary
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("run_dir", type=Path, help="a finished benchmark.py --out folder")
+    ap.add_argument("--method", help="the lmpc-* method of the run (needed if it has several)")
+    ap.add_argument("--out", type=Path, help="output folder (default RUN_DIR/regret)")
+    ap.add_argument("--lookahead-s", type=float, default=OracleConfig.lookahead_s,
+                    help="rollout length, s of sim time (default: the oracle's)")
+    args = ap.parse_args(argv)
+    try:
+        oracle = OracleConfig(lookahead_s=args.lookahead_s)
+        summary = run(args.run_dir, method=args.method, out=args.out, oracle=oracle)
+    except (RegretError, ValueError) as exc:
+        print(f"regret.py: {exc}", file=sys.stderr)
+        return 2
+    print(summary_md(summary, args.run_dir), end="")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

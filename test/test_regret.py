@@ -1,0 +1,88 @@
+"""scripts/regret.py (docs/ORACLE.md, "Regret"): the regret of the oracle's own decisions
+is 0, and a two-scene lmpc-rules run gives one sane row per decision."""
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import tempfile
+from pathlib import Path
+
+from lmpc_bridge.sim import SumoSim
+from lmpc_scripts import benchmark, methods, regret
+from lmpc_scripts import method_oracle as mo
+
+SMALL = mo.OracleConfig(lookahead_s=3.0, max_options=8)
+"""A smaller search than the default, to keep the tests short (the regret uses the same)."""
+SMALLER = mo.OracleConfig(lookahead_s=2.0, max_options=5)
+
+
+def test_the_regret_of_the_oracles_own_decisions_is_zero(tmp_path: Path) -> None:
+    log = tmp_path / "usi-100-lmpc-oracle.jsonl"
+
+    def build(spec):  # the oracle with the small search, its decision log kept
+        return mo.build(dataclasses.replace(spec, log_path=log), oracle=SMALL)
+
+    methods.prepare()
+    sim = SumoSim(work_dir=tmp_path / "scenes")
+    try:
+        row = {"method": "lmpc-oracle", "family": "usi", "seed": 100, "outcome": "-",
+               "time_s": "", "overall_cost": ""}
+        rows, scene = regret.regret_of_scene(tmp_path, row, sim=sim, oracle=SMALL,
+                                             build=build, max_time_s=12.0)
+    finally:
+        sim.close()
+    chosen = [json.loads(line) for line in log.read_text().splitlines()]
+    chosen = [r for r in chosen if r.get("kind") == "oracle"]
+    assert len(rows) == len(chosen) >= 4
+    assert [r["t_s"] for r in rows] == [round(c["stamp_s"], 3) for c in chosen]
+    for r, c in zip(rows, chosen):
+        # the chosen decision is recognised as the option the oracle chose (or one of the
+        # same content), and no option of the same search beats it
+        assert r["regret"] == 0.0 and r["parts"] == "", r
+        assert c["scores"][c["chosen"]] == (None if math.isinf(r["chosen_score"])
+                                            else round(r["chosen_score"], 6)), (r, c)
+        assert c["scores"][r["chosen"]] == c["scores"][c["chosen"]], (r, c)
+    assert scene["decisions"] == len(rows)
+
+
+def test_regret_of_a_two_scene_rules_run(tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    assert benchmark.main(["--families", "usi,rab", "--seeds", "100", "--methods",
+                           "lmpc-rules", "--workers", "1", "--out", str(run)]) == 0
+    summary = regret.run(run, oracle=SMALLER, progress=False)
+    out = run / "regret"
+    for name in ("regret.csv", "summary.json", "regret.md", "regret.png"):
+        assert (out / name).is_file() and (out / name).stat().st_size > 0, name
+    with (out / "regret.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert {r["family"] for r in rows} == {"usi", "rab"}
+    for sc in summary["scenes"]:
+        mine = [r for r in rows if r["family"] == sc["family"]]
+        assert len(mine) == sc["decisions"] > 0
+        if sc["repeats_recorded_row"]:  # the re-run is the recorded run: one row a decision
+            assert sc["same_instants"] and sc["decisions"] == sc["recorded_decisions"]
+    rab = next(s for s in summary["scenes"] if s["family"] == "rab")
+    assert rab["repeats_recorded_row"], rab
+    for r in rows:
+        chosen, best, reg = (float(r["chosen_score"]), float(r["best_score"]),
+                             float(r["regret"]))
+        assert reg >= 0.0 and best <= chosen, r
+        if math.isfinite(chosen):
+            assert abs(reg - (chosen - best)) < 1e-5, r
+        assert (r["parts"] == "") == (reg == 0.0), r
+        assert int(r["options"]) <= SMALLER.max_options
+    fam = summary["families"]["rab"]
+    assert 0.0 <= fam["share_zero"] <= 1.0 and fam["decisions"] == rab["decisions"]
+    assert fam["regret_median"] <= fam["regret_p90"]
+    assert len(fam["worst"]) == min(10, fam["decisions"])
+    assert [w["regret"] for w in fam["worst"]] == sorted((w["regret"] for w in fam["worst"]),
+                                                         reverse=True)
+
+
+def test_a_folder_without_results_is_a_one_line_error(capsys) -> None:
+    with tempfile.TemporaryDirectory() as d:
+        assert regret.main([d]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("regret.py: ") and "results.csv" in err and "\n" not in err
