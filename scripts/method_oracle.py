@@ -147,6 +147,17 @@ def decision_options(scene: Scene, *, accel_intervals: Sequence[Any],
     return out[:max_options]
 
 
+def options_in(scene: Scene, space: Any, rules: Optional[LlmDecision | EmergencyDecision],
+               oracle: "OracleConfig") -> list[Option]:
+    """:func:`decision_options` of ``scene`` in the decision space ``space``
+    (``lmpc_msgs_py.vocabulary.DecisionSpace``) with the search of ``oracle``."""
+    return decision_options(
+        scene, accel_intervals=space.accel_intervals_mps2,
+        steer_intervals=space.steer_intervals_rad, neutral_accel=space.neutral_accel_index,
+        neutral_steer=space.neutral_steer_index, rules=rules, encoding=oracle.encoding,
+        max_options=oracle.max_options)
+
+
 def route_speed_mps(obs: Any, cap_mps: float) -> float:
     """The route's speed: the length-weighted mean speed limit of its lanes, at most
     ``cap_mps`` (the distance still to go is priced at it)."""
@@ -317,12 +328,7 @@ class OraclePlanner(PlannerCore):
         t0 = time.perf_counter()
         attempts: list[Any] = []
         rules = self._ask(scene, mode, "all", {}, attempts)  # an emergency answer too
-        space = self.space
-        options = decision_options(
-            scene, accel_intervals=space.accel_intervals_mps2,
-            steer_intervals=space.steer_intervals_rad, neutral_accel=space.neutral_accel_index,
-            neutral_steer=space.neutral_steer_index, rules=rules,
-            encoding=self.oracle.encoding, max_options=self.oracle.max_options)
+        options = options_in(scene, self.space, rules, self.oracle)
         ep = self._episode
         snap = ep.snapshot()
         pricing = Pricing.at(ep, snap, scene.obs, self.oracle)

@@ -45,7 +45,7 @@ from lmpc_scripts import methods
 from lmpc_scripts.method_oracle import (
     OracleConfig,
     Pricing,
-    decision_options,
+    options_in,
     option_decision,
     oracle_meta,
     score_rollout,
@@ -117,12 +117,7 @@ class RegretMixin:
         t0 = time.perf_counter()
         ep = ctx.episode
         dt = ep.sim.dt_s
-        space = core.space
-        options = decision_options(
-            scene, accel_intervals=space.accel_intervals_mps2,
-            steer_intervals=space.steer_intervals_rad, neutral_accel=space.neutral_accel_index,
-            neutral_steer=space.neutral_steer_index, rules=rules,
-            encoding=ctx.oracle.encoding, max_options=ctx.oracle.max_options)
+        options = options_in(scene, core.space, rules, ctx.oracle)
         if chosen is not None:
             meta = DecisionMeta(
                 decision_id=chosen.decision_id, seq=chosen.seq, source=chosen.source,
@@ -142,7 +137,7 @@ class RegretMixin:
         finally:
             ep.restore(snap, planner=False)
             ep.discard(snap)
-        base = _baseline_content(scene, space)
+        base = _baseline_content(scene, core.space)
         key = _content(chosen, base)
         name = next((o.name for o, d in zip(options, decisions)
                      if (d is None) == (chosen is None) and _content(d, base) == key),
