@@ -775,6 +775,11 @@ class SumoSim:
             lines += traffic.entry_warnings(declared, window, count)
         return tuple(lines)
 
+    def last_step(self) -> StepRecord | None:
+        """The newest step record (None before the first step): cheaper than
+        ``record().steps[-1]``, which copies every step."""
+        return self._steps[-1] if self._steps else None
+
     def record(self) -> EpisodeRecord:
         """The per-step record so far (``model_dump_json()`` for a file)."""
         scene = self.scene

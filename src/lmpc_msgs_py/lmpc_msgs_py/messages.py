@@ -231,7 +231,10 @@ class SignalStates(LmpcMessage):
 
 # --- decision ----------------------------------------------------------------------------
 DecisionSource = Annotated[
-    str, Field(pattern=r"^(rules|oracle|fallback|replay|mock|llm:[\w.:/\-]{1,96})$")]
+    str, Field(pattern=r"^(rules|oracle|fallback|replay|mock|llm:[\w.:/\-]{1,96}"
+                       r"|policy:[\w.\-]{1,32})$")]
+"""Who made a decision; ``policy:<name>``: a learned planner (``dqn``, ``ppo``, ``sac``:
+docs/RL.md) in place of the reasoner."""
 DecisionMode = Literal["normal", "emergency"]
 WeightLevel = Literal["low", "normal", "high"]
 
