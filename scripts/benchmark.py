@@ -60,6 +60,7 @@ from lmpc_bridge.evaluation.style import (
     style_table_md,
 )
 from lmpc_bridge.evaluation.table import aggregate, table2_md, table_md
+from lmpc_scripts.method_rl import ALGOS, POLICY_DIR_ENV, policy_path
 from lmpc_scripts.methods import (
     LLM_METHODS,
     METHODS,
@@ -80,6 +81,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                          "traffic seed (default: the file's own seeds, one scene)")
     ap.add_argument("--methods", default="mpc,lmpc-rules",
                     help="comma-separated methods (--list-methods: what each is)")
+    ap.add_argument("--policy-dir", type=Path, default=None,
+                    help="folder of the saved policies of dqn / ppo / sac "
+                         "(<algo>-<family>.npz; default $LMPC_POLICY_DIR, else policies/)")
     ap.add_argument("--list-methods", action="store_true",
                     help="print the registered methods, one line each, and exit")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1,
@@ -141,6 +145,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         ap.error(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)}")
+    learned = [m for m in methods if m in ALGOS]
+    if learned:
+        if args.policy_dir is not None:  # the workers read it from the environment
+            os.environ[POLICY_DIR_ENV] = str(args.policy_dir.resolve())
+        missing = [str(policy_path(m, f)) for m in learned for f in families
+                   if not policy_path(m, f).is_file()]
+        if missing:
+            print(f"benchmark: no saved policy {', '.join(missing)}: train it "
+                  "(scripts/train_rl.py --install) or give --policy-dir", file=sys.stderr)
+            return 2
     if args.planner_config is not None:
         from lmpc_llm_planner.config import PlannerConfigError, load_planner_config
 

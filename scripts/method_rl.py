@@ -279,7 +279,9 @@ def build(spec: SceneSpec) -> Wiring:
     planner = PolicyPlanner(policy)
     controller = methods.make_controller()
 
-    def finish(log: Any) -> dict[str, Any]:
+    def finish(log: Optional[Path]) -> dict[str, Any]:
+        if log is not None:  # the MPC's stale checks go to the scene's decision log
+            log.parent.mkdir(parents=True, exist_ok=True)
         cells = methods.controller_cells(controller, log)
         cells["note"] = f"{spec.method}: {planner.decisions} decisions; " + action_counts(
             policy.kind, planner.actions)

@@ -204,6 +204,15 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            build_ablation),
     Method("lmpc-rules-aw", "ablation: the rules reasoner's action bias and weights only "
            "(baseline attention, predictions, route reference)", build_ablation),
+    Method("dqn", "learned planner: a DQN policy (policies/dqn-<family>.npz or "
+           "$LMPC_POLICY_DIR) choosing decisions for the MPC (docs/RL.md)",
+           "lmpc_scripts.method_rl:build"),
+    Method("ppo", "learned planner: a PPO policy (policies/ppo-<family>.npz or "
+           "$LMPC_POLICY_DIR) choosing decisions for the MPC (docs/RL.md)",
+           "lmpc_scripts.method_rl:build"),
+    Method("sac", "learned planner: a SAC policy (policies/sac-<family>.npz or "
+           "$LMPC_POLICY_DIR) choosing decisions for the MPC (docs/RL.md)",
+           "lmpc_scripts.method_rl:build"),
     Method("lmpc-oracle", "the best of <= 32 decisions per planning instant, each rolled "
            "out 8 s in the scene itself (docs/ORACLE.md; tens of times slower)",
            "lmpc_scripts.method_oracle:build"),

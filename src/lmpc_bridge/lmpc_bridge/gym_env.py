@@ -149,7 +149,8 @@ class LmpcDrivingEnv(gym.Env):
                              n_est=self._n_est, dt_s=sim.dt_s, outcome=outcome)
         terminated = outcome in ("reached", "collision", "off_route", "error")
         truncated = outcome == "timeout"
-        info: dict[str, Any] = {"outcome": outcome, "decision": decision is not None}
+        info: dict[str, Any] = {"outcome": outcome, "decision": decision is not None,
+                                "scene_seed": self.scene_seed}
         if not running:
             result = ep.result()
             m = result.metrics
