@@ -50,6 +50,10 @@ def parse_args(argv: Optional[list[str]] = None) -> argparse.Namespace:
     p.add_argument("--scenes", type=int, default=200, help="scene seeds seed..seed+N-1")
     p.add_argument("--envs", type=int, default=2, help="parallel environments (processes)")
     p.add_argument("--out", type=Path, default=None)
+    p.add_argument("--eval-scenes", type=int, default=10,
+                   help="after training, drive this many further training scenes (the "
+                        "seeds after the training ones) with the greedy policy and with "
+                        "the neutral action (the mpc method); 0: none")
     p.add_argument("--install", action="store_true",
                    help="copy the policy to policies/<algo>-<family>.npz")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -65,8 +69,8 @@ def check_args(args: argparse.Namespace) -> Optional[str]:
                 "the published test scenes, 100-124 the development seeds)")
     if args.family not in families():
         return f"--family {args.family!r}: choose from {', '.join(families())}"
-    if args.steps < 1 or args.scenes < 1 or args.envs < 1:
-        return "--steps, --scenes and --envs must be >= 1"
+    if args.steps < 1 or args.scenes < 1 or args.envs < 1 or args.eval_scenes < 0:
+        return "--steps, --scenes and --envs must be >= 1, --eval-scenes >= 0"
     return None
 
 
@@ -210,7 +214,10 @@ def _episode_ends(info: dict[str, Any], done: np.ndarray) -> list[tuple[int, dic
     return [(int(i), pick(final, int(i))) for i in np.nonzero(done)[0]]
 
 
-def write_png(csv_path: Path, png_path: Path, title: str) -> None:
+def write_png(csv_path: Path, png_path: Path, title: str,
+              reference: Optional[dict[str, float]] = None) -> None:
+    """The curve: each episode's return, its running mean, and ``reference`` lines (the
+    held-out scenes' mean return of the policy and of the mpc method)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -226,15 +233,61 @@ def write_png(csv_path: Path, png_path: Path, title: str) -> None:
         if len(y) >= k:
             smooth = np.convolve(y, np.ones(k) / k, mode="valid")
             ax.plot(x[k - 1:], smooth, "-", label=f"mean of {k}")
-        ax.legend()
     else:
         ax.text(0.5, 0.5, "no episode finished", ha="center", transform=ax.transAxes)
+    for (label, value), style in zip((reference or {}).items(), ("--", ":")):
+        ax.axhline(value, linestyle=style, color="k", label=f"{label}: {value:.1f}")
+    if rows or reference:
+        ax.legend(fontsize=8)
     ax.set_xlabel("environment steps")
     ax.set_ylabel("return")
     ax.set_title(title)
     fig.tight_layout()
     fig.savefig(png_path, dpi=90)
     plt.close(fig)
+
+
+# -- held-out check -------------------------------------------------------------------------------
+EVAL_FIELDS = ("scene_seed", "driver", "return", "outcome", "overall_cost", "time_s")
+
+
+def evaluate(policy: Any, family: str, seeds: tuple[int, ...], path: Path
+             ) -> dict[str, Any]:
+    """Drive ``seeds`` with the greedy ``policy`` and with the neutral action (the ``mpc``
+    method) in this process; one row each into ``path``; the means."""
+    from lmpc_bridge.gym_env import LmpcDrivingEnv, neutral_action
+
+    env = LmpcDrivingEnv(family, seeds=seeds, action=policy.kind, k_agents=policy.k_agents)
+    rows = []
+    try:
+        for seed in seeds:
+            for driver in ("policy", "mpc"):
+                obs, _ = env.reset(options={"scene_seed": seed})
+                total, info = 0.0, {}
+                while True:
+                    act = policy.act(obs) if driver == "policy" else neutral_action(env)
+                    obs, reward, terminated, truncated, info = env.step(act)
+                    total += reward
+                    if terminated or truncated:
+                        break
+                m = info["metrics"]
+                rows.append({"scene_seed": seed, "driver": driver, "return": round(total, 4),
+                             "outcome": info["outcome"],
+                             "overall_cost": round(m["overall_cost"], 4),
+                             "time_s": round(m["time_s"], 2)})
+    finally:
+        env.close()
+    with path.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=EVAL_FIELDS)
+        writer.writeheader()
+        writer.writerows(rows)
+    out: dict[str, Any] = {"eval_seeds": f"{seeds[0]}-{seeds[-1]}"}
+    for driver in ("policy", "mpc"):
+        mine = [r for r in rows if r["driver"] == driver]
+        out[f"eval_{driver}_return"] = round(float(np.mean([r["return"] for r in mine])), 2)
+        out[f"eval_{driver}_oc"] = round(float(np.mean([r["overall_cost"] for r in mine])), 2)
+        out[f"eval_{driver}_reached"] = sum(r["outcome"] == "reached" for r in mine)
+    return out
 
 
 # -- the run --------------------------------------------------------------------------------------
@@ -338,8 +391,6 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
             venv.close()
     wall = time.perf_counter() - t1
     steps = iterations * env.num_envs
-    write_png(curve_path, out / "curve.png",
-              f"{args.algo.upper()} on {args.family}: {steps} steps, {args.envs} envs")
     prov = {
         "algo": args.algo, "family": args.family, "seed": args.seed,
         "scene_seeds": f"{seeds[0]}-{seeds[-1]}", "steps": steps, "envs": args.envs,
@@ -355,6 +406,16 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     prov["k_agents"] = DEFAULT_K_AGENTS
     policy = NumpyPolicy(algo=args.algo, layers=tuple(policy_layers(args.algo, agent)),
                          meta=prov)
+    if args.eval_scenes:
+        held_out = tuple(range(seeds[-1] + 1, seeds[-1] + 1 + args.eval_scenes))
+        t2 = time.perf_counter()
+        prov.update(evaluate(policy, args.family, held_out, out / "eval.csv"))
+        prov["eval_wall_s"] = round(time.perf_counter() - t2, 1)
+        policy = NumpyPolicy(algo=args.algo, layers=policy.layers, meta=prov)
+    write_png(curve_path, out / "curve.png",
+              f"{args.algo.upper()} on {args.family}: {steps} steps, {args.envs} envs",
+              {f"held-out mean, {d}": prov[f"eval_{d}_return"] for d in ("policy", "mpc")
+               if f"eval_{d}_return" in prov})
     policy.save(out / "policy.npz")
     (out / "provenance.json").write_text(json.dumps(prov, indent=2) + "\n")
     if args.install:
@@ -382,6 +443,12 @@ def main(argv: Optional[list[str]] = None) -> int:
     print(f"{prov['algo']} {prov['family']}: {prov['steps']} steps in {prov['train_wall_s']} s "
           f"({prov['steps_per_s']} steps/s, {prov['envs']} envs), {prov['episodes']} episodes; "
           f"policy {prov['out']}/policy.npz")
+    if "eval_policy_oc" in prov:
+        n = args.eval_scenes
+        print(f"held-out scenes {prov['eval_seeds']}: policy reached {prov['eval_policy_reached']}"
+              f"/{n}, mean O.C. {prov['eval_policy_oc']}, return {prov['eval_policy_return']}; "
+              f"mpc reached {prov['eval_mpc_reached']}/{n}, mean O.C. {prov['eval_mpc_oc']}, "
+              f"return {prov['eval_mpc_return']}")
     return 0
 
 

@@ -124,7 +124,7 @@ def test_train_refuses_seeds_below_the_training_range() -> None:
 def test_training_smoke_run_writes_curve_and_policy(algo: str, tmp_path: Path) -> None:
     out = subprocess.run([sys.executable, str(TRAIN), "--algo", algo, "--family", "usi",
                           "--steps", "300", "--seed", "10000", "--envs", "2",
-                          "--no-progress", "--out", str(tmp_path)],
+                          "--eval-scenes", "1", "--no-progress", "--out", str(tmp_path)],
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     rows = list(csv.DictReader((tmp_path / "curve.csv").open()))
@@ -133,6 +133,10 @@ def test_training_smoke_run_writes_curve_and_policy(algo: str, tmp_path: Path) -
     assert (tmp_path / "curve.png").stat().st_size > 0
     prov = json.loads((tmp_path / "provenance.json").read_text())
     assert prov["steps"] == 300 and prov["versions"]["skrl"] != "absent"
+    held_out = list(csv.DictReader((tmp_path / "eval.csv").open()))
+    assert [(r["scene_seed"], r["driver"]) for r in held_out] == [("10200", "policy"),
+                                                                 ("10200", "mpc")]
+    assert prov["eval_mpc_reached"] + prov["eval_policy_reached"] <= 2
     pol = method_rl.load_policy(tmp_path / "policy.npz")
     assert pol.algo == algo and pol.meta["commit"] == prov["commit"]
     assert pol.forward(np.zeros(obs_size(), np.float32)).shape == ((9,) if algo == "dqn"
