@@ -134,8 +134,8 @@ def test_training_smoke_run_writes_curve_and_policy(algo: str, tmp_path: Path) -
     prov = json.loads((tmp_path / "provenance.json").read_text())
     assert prov["steps"] == 300 and prov["versions"]["skrl"] != "absent"
     held_out = list(csv.DictReader((tmp_path / "eval.csv").open()))
-    assert [(r["scene_seed"], r["driver"]) for r in held_out] == [("10200", "policy"),
-                                                                 ("10200", "mpc")]
+    pairs = [(r["scene_seed"], r["driver"]) for r in held_out]
+    assert pairs == [("10200", "policy"), ("10200", "mpc")]
     assert prov["eval_mpc_reached"] + prov["eval_policy_reached"] <= 2
     pol = method_rl.load_policy(tmp_path / "policy.npz")
     assert pol.algo == algo and pol.meta["commit"] == prov["commit"]
