@@ -161,7 +161,9 @@ def make_agent(algo: str, models: dict[str, Any], env: Any, steps_per_env: int) 
     elif algo == "ppo":
         from skrl.agents.jax.ppo import PPO, PPO_CFG
 
-        rollouts = max(8, min(256, steps_per_env // 4))
+        # skrl jit-compiles its GAE as a loop unrolled over the rollouts: 256 took 2 min
+        # 10 s to compile on this machine (once per run), so at most 64
+        rollouts = max(8, min(64, steps_per_env // 4))
         cfg = PPO_CFG(rollouts=rollouts, learning_epochs=4, mini_batches=4, discount_factor=0.99,
                       gae_lambda=0.95, learning_rate=3e-4, entropy_loss_scale=0.0,
                       value_loss_scale=0.5)
