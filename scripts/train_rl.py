@@ -348,6 +348,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     lengths = np.zeros(env.num_envs, dtype=int)
     episodes: list[dict[str, Any]] = []
     setup_s = time.perf_counter() - t0
+    env_s = 0.0  # wall time waiting for the environments (the rest: the agent, skrl)
     t1 = time.perf_counter()
     with curve_path.open("w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=CURVE_FIELDS)
@@ -359,7 +360,9 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
             for t in range(iterations):
                 agent.pre_interaction(timestep=t, timesteps=iterations)
                 actions, _ = agent.act(obs, None, timestep=t, timesteps=iterations)
+                t_env = time.perf_counter()
                 next_obs, rewards, terminated, truncated, info = env.step(actions)
+                env_s += time.perf_counter() - t_env
                 agent.record_transition(
                     observations=obs, states=None, actions=actions, rewards=rewards,
                     next_observations=next_obs, next_states=None, terminated=terminated,
@@ -398,6 +401,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
         "scene_seeds": f"{seeds[0]}-{seeds[-1]}", "steps": steps, "envs": args.envs,
         "episodes": len(episodes), "train_wall_s": round(wall, 1),
         "setup_wall_s": round(setup_s, 1), "steps_per_s": round(steps / wall, 1),
+        "env_wall_s": round(env_s, 1), "agent_wall_s": round(wall - env_s, 1),
         "command": " ".join([Path(sys.argv[0]).name] + sys.argv[1:]),
         "commit": _git_commit(), "versions": _versions(), "hidden": list(HIDDEN),
         "k_agents": None, "action": kind,
@@ -443,7 +447,8 @@ def main(argv: Optional[list[str]] = None) -> int:
         return 2
     prov = train(args)
     print(f"{prov['algo']} {prov['family']}: {prov['steps']} steps in {prov['train_wall_s']} s "
-          f"({prov['steps_per_s']} steps/s, {prov['envs']} envs), {prov['episodes']} episodes; "
+          f"({prov['steps_per_s']} steps/s, {prov['envs']} envs; {prov['env_wall_s']} s in "
+          f"the envs), {prov['episodes']} episodes; "
           f"policy {prov['out']}/policy.npz")
     if "eval_policy_oc" in prov:
         n = args.eval_scenes

@@ -20,7 +20,9 @@ setup(
         "eclipse-sumo>=1.20,<2", "pyyaml>=6,<7",
     ],
     # lmpc_bridge.render (the pictures) is the only user of matplotlib / pillow
-    extras_require={"render": ["matplotlib>=3.8,<4", "pillow>=10"]},
+    # lmpc_bridge.gym_env (the learned planners' environment, docs/RL.md) needs gymnasium
+    extras_require={"render": ["matplotlib>=3.8,<4", "pillow>=10"],
+                    "rl": ["gymnasium>=1.0,<2"]},
     python_requires=">=3.10",
     zip_safe=False,
     maintainer="LanguageMPC ROS 2 maintainers",
