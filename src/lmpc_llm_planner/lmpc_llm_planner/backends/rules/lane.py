@@ -66,7 +66,9 @@ class LaneView:
     route_lane: Optional[str]
     """The lane of this edge the route candidate ends on (it may jump several lanes)."""
     closed: frozenset[str]
-    """Lanes the user said are closed."""
+    """Lanes the user said are closed (or, making room, every lane but the kerb lane)."""
+    make_room: bool
+    """The user asked to make room for an emergency vehicle."""
     ok_idx: list[int]
     """Indices of the lanes that continue along the route (open ones, if any)."""
     need: int
@@ -165,7 +167,7 @@ def lane_view(scene: Scene, intent: Intent) -> Optional[LaneView]:
         nearest = min(ok_idx, key=lambda i: (abs(i - here.index), i))
         toward = here.index + (1 if nearest > here.index else -1)
     return LaneView(here=here, siblings=siblings, by_lane=by_lane, route_lane=route_lane,
-                    closed=closed, ok_idx=ok_idx, need=need, toward=toward,
+                    closed=closed, make_room=intent.make_room, ok_idx=ok_idx, need=need, toward=toward,
                     dist_end_m=dist_end_m, left_hand=left_hand)
 
 
@@ -188,13 +190,17 @@ def offered_by_lane(scene: Scene, here: Lane) -> dict[str, int]:
 
 def closed_lanes(intent: Intent, siblings: dict[int, Lane], *, left_hand: bool
                  ) -> frozenset[str]:
-    """The ids of the outer lanes the user said are closed ("right": the rightmost)."""
+    """The ids of the outer lanes the user said are closed ("right": the rightmost) and,
+    to make room for an emergency vehicle, of every lane but the kerb lane (index 0: the
+    rightmost, in left-hand traffic the leftmost)."""
     n = max(siblings) + 1
     closed = set()
     for side in intent.closed_sides:
         outer = 0 if (side == "right") != left_hand else n - 1
         if outer in siblings:
             closed.add(siblings[outer].id)
+    if intent.make_room:
+        closed |= {ln.id for i, ln in siblings.items() if i != 0}
     return frozenset(closed)
 
 
@@ -273,7 +279,7 @@ def choose_lane(inp: RuleInputs, plan: Plan, lv: LaneView, lead: LeaderState
     urgent_merge = lv.need > 0 and (style != "aggressive"
                                     or lv.dist_end_m < merge_m * LANE_MERGE_AGGRESSIVE)
     want: Optional[Want] = None
-    if lv.here.id in lv.closed and lv.dist_end_m <= CLOSED_LOOKAHEAD_M:
+    if lv.here.id in lv.closed and (lv.make_room or lv.dist_end_m <= CLOSED_LOOKAHEAD_M):
         want = _leave_closed(lv)
     if want is None and lead.blocked and lead.lead is not None:
         want = _pass_blocked(lv, lead.lead)
@@ -293,6 +299,11 @@ def _open_neighbours(lv: LaneView) -> list[int]:
 
 
 def _leave_closed(lv: LaneView) -> Optional[Want]:
+    if lv.make_room and lv.here.index > 0:
+        if 0 not in lv.ok_idx:
+            return None  # the route needs an inner lane here: it keeps it
+        return Want(lv.here.index - 1, "the user asks me to make room for an emergency "
+                    "vehicle, so I move towards the kerb lane", urgent=True)
     open_nb = _open_neighbours(lv)
     if not open_nb:
         return None
