@@ -167,8 +167,8 @@ def lane_view(scene: Scene, intent: Intent) -> Optional[LaneView]:
         nearest = min(ok_idx, key=lambda i: (abs(i - here.index), i))
         toward = here.index + (1 if nearest > here.index else -1)
     return LaneView(here=here, siblings=siblings, by_lane=by_lane, route_lane=route_lane,
-                    closed=closed, make_room=intent.make_room, ok_idx=ok_idx, need=need, toward=toward,
-                    dist_end_m=dist_end_m, left_hand=left_hand)
+                    closed=closed, make_room=intent.make_room, ok_idx=ok_idx, need=need,
+                    toward=toward, dist_end_m=dist_end_m, left_hand=left_hand)
 
 
 def offered_by_lane(scene: Scene, here: Lane) -> dict[str, int]:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from typing import Optional
 
-from lmpc_msgs_py.messages import Lane
+from lmpc_msgs_py.messages import Lane, StopLine
 
 from lmpc_llm_planner.scene import Scene
 
@@ -110,7 +110,7 @@ def next_junction_m(scene: Scene) -> Optional[float]:
     ego = obs.ego
     route = obs.map.ego_route
     incoming: dict[str, set[str]] = {}
-    stops = {}
+    stops: dict[str, StopLine] = {}
     for sl in obs.map.stop_lines:
         lane = scene.lanes.get(sl.lane_id)
         if lane is not None:
@@ -125,8 +125,8 @@ def next_junction_m(scene: Scene) -> Optional[float]:
         dist += lane.length_m - (ego.lane_pos_m if k == 0 else 0.0)
         if dist > PEDESTRIAN_LOOKAHEAD_M:
             return None
-        sl = stops.get(lid)
-        if sl is not None and (sl.signalized or len(incoming[sl.junction_id]) >= 2
+        stop = stops.get(lid)
+        if stop is not None and (stop.signalized or len(incoming[stop.junction_id]) >= 2
                                or len({lk.direction for lk in lane.successors}) >= 2):
             return max(0.0, dist)
     return None
