@@ -26,7 +26,7 @@ def test_the_situation_figures_of_a_record() -> None:
     lanes = ["a_0"] * 5 + [":j_0"] + ["b_1"] * 3 + ["b_0"] * 1
     speeds = [10.0, 10.0, 8.0, 6.0, 4.0, 4.0, 5.0, 5.0, 5.0, 5.0]
     m = situation_metrics(_record(lanes, speeds))
-    assert m["kerb_share"] == pytest.approx(0.25)  # "a" has one lane: not counted
+    assert m["kerb_share"] == pytest.approx(6 / 9, abs=1e-4)  # 9 steps off the junction
     assert m["mean_speed_mps"] == pytest.approx(sum(speeds) / len(speeds))
     # 10 m a step: the 30 m before the junction entry (step 5) are steps 2-4
     assert m["approach_mps"] == pytest.approx((8.0 + 6.0 + 4.0) / 3)

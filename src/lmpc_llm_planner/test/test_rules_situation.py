@@ -5,7 +5,7 @@ four-way junction (``S_in_0``, stop line at y = -8) and the two-lane straight ro
 from __future__ import annotations
 
 import pytest
-from rules_kit import accel_mid, ask, chosen_label, road_obs
+from rules_kit import accel_mid, ask, car, chosen_label, road_obs
 
 from lmpc_llm_planner.backends.rules import parse_instruction
 from lmpc_llm_planner.backends.rules.situation import (
@@ -76,6 +76,13 @@ def test_make_room_moves_to_the_kerb_lane(road, planner_config, mpc_config):
     kept, scene = ask(right, planner_config, mpc_config, instruction=AMBULANCE)
     assert chosen_label(kept, scene) == "continue in lane"
     assert accel_mid(kept, mpc_config) >= 0.0
+
+
+def test_making_room_still_passes_a_standing_car(road, planner_config, mpc_config):
+    # a car stands in the kerb lane ahead: the ego passes it through the inner lane
+    obs = road_obs(road, [car("stopped", x_m=85.0, v_mps=0.0)], v_mps=8.0)
+    told, scene = ask(obs, planner_config, mpc_config, instruction=AMBULANCE)
+    assert chosen_label(told, scene) == "change to the left lane"
 
 
 def test_make_room_on_a_single_lane_slows_down(straight_map, obs_factory, planner_config,

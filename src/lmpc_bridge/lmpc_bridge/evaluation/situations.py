@@ -6,10 +6,10 @@ the same scenes without an instruction).
 
 Definitions (from :class:`lmpc_bridge.record.EpisodeRecord`):
 
-- ``kerb_share``: of the steps on a normal lane of a multi-lane road (a lane index > 0
-  seen on that edge during the episode, so single-lane roads do not count), the share on
-  lane index 0 (the kerb lane: rightmost, leftmost in left-hand traffic); nan without
-  such steps. A closed right lane should lower it, making room raise it;
+- ``kerb_share``: of the steps on a normal (not junction) lane, the share on lane index 0
+  (the kerb lane: rightmost, leftmost in left-hand traffic; a one-lane road's lane too,
+  the record does not know how many lanes a road has); nan without such steps. A closed
+  right lane should lower it, making room raise it;
 - ``mean_speed_mps``: the ego's mean speed over the episode;
 - ``approach_mps``: the mean ego speed over the ``APPROACH_M`` of road before each
   junction entry (a normal lane followed by an internal ``:`` lane), averaged over the
@@ -51,9 +51,8 @@ def situation_metrics(record: EpisodeRecord) -> dict[str, Any]:
     """The situation figures of one episode (see the module doc); nan where undefined."""
     steps = record.steps
     where = [_lane_index(s.lane_id) for s in steps]
-    multi = {w[0] for w in where if w is not None and w[1] > 0}
-    on_multi = [w for w in where if w is not None and w[0] in multi]
-    kerb = sum(1 for w in on_multi if w[1] == 0) / len(on_multi) if on_multi else math.nan
+    normal = [w for w in where if w is not None]
+    kerb = sum(1 for w in normal if w[1] == 0) / len(normal) if normal else math.nan
     # distance driven up to each step, for the approach windows
     dist = [0.0]
     for a, b in zip(steps, steps[1:]):

@@ -66,9 +66,9 @@ class LaneView:
     route_lane: Optional[str]
     """The lane of this edge the route candidate ends on (it may jump several lanes)."""
     closed: frozenset[str]
-    """Lanes the user said are closed (or, making room, every lane but the kerb lane)."""
+    """Lanes the user said are closed."""
     make_room: bool
-    """The user asked to make room for an emergency vehicle."""
+    """The user asked to make room for an emergency vehicle: keep to the kerb lane."""
     ok_idx: list[int]
     """Indices of the lanes that continue along the route (open ones, if any)."""
     need: int
@@ -190,17 +190,13 @@ def offered_by_lane(scene: Scene, here: Lane) -> dict[str, int]:
 
 def closed_lanes(intent: Intent, siblings: dict[int, Lane], *, left_hand: bool
                  ) -> frozenset[str]:
-    """The ids of the outer lanes the user said are closed ("right": the rightmost) and,
-    to make room for an emergency vehicle, of every lane but the kerb lane (index 0: the
-    rightmost, in left-hand traffic the leftmost)."""
+    """The ids of the outer lanes the user said are closed ("right": the rightmost)."""
     n = max(siblings) + 1
     closed = set()
     for side in intent.closed_sides:
         outer = 0 if (side == "right") != left_hand else n - 1
         if outer in siblings:
             closed.add(siblings[outer].id)
-    if intent.make_room:
-        closed |= {ln.id for i, ln in siblings.items() if i != 0}
     return frozenset(closed)
 
 
@@ -279,16 +275,19 @@ def choose_lane(inp: RuleInputs, plan: Plan, lv: LaneView, lead: LeaderState
     urgent_merge = lv.need > 0 and (style != "aggressive"
                                     or lv.dist_end_m < merge_m * LANE_MERGE_AGGRESSIVE)
     want: Optional[Want] = None
-    if lv.here.id in lv.closed and (lv.make_room or lv.dist_end_m <= CLOSED_LOOKAHEAD_M):
+    if lv.here.id in lv.closed and lv.dist_end_m <= CLOSED_LOOKAHEAD_M:
         want = _leave_closed(lv)
     if want is None and lead.blocked and lead.lead is not None:
         want = _pass_blocked(lv, lead.lead)
+    if want is None and lv.make_room:
+        want = _make_room(lv)
     if want is None and urgent_merge and lv.toward is not None:
         if merge_along_route(inp, plan, lv):
             return "change"
         want = Want(lv.toward, f"my route needs {lv.need} lane change(s) within "
                     f"{lv.dist_end_m:.0f} m", urgent=lv.dist_end_m < merge_m)
-    if want is None and lead.slow and style != "conservative" and lead.lead is not None:
+    if want is None and lead.slow and style != "conservative" and lead.lead is not None \
+            and not lv.make_room:
         want = overtake(inp, lv, lead.lead)
     return want
 
@@ -298,12 +297,17 @@ def _open_neighbours(lv: LaneView) -> list[int]:
             if i in lv.siblings and lv.siblings[i].id not in lv.closed]
 
 
+def _make_room(lv: LaneView) -> Optional[Want]:
+    """Towards the kerb lane (index 0) for an emergency vehicle, where the route goes on
+    from it and it is open; not urgent (no easing off for a gap: passing a standing
+    vehicle through an inner lane comes first)."""
+    if lv.here.index == 0 or 0 not in lv.ok_idx:
+        return None  # on it, or the route needs an inner lane here: keep it
+    return Want(lv.here.index - 1, "the user asks me to make room for an emergency "
+                "vehicle, so I move towards the kerb lane")
+
+
 def _leave_closed(lv: LaneView) -> Optional[Want]:
-    if lv.make_room and lv.here.index > 0:
-        if 0 not in lv.ok_idx:
-            return None  # the route needs an inner lane here: it keeps it
-        return Want(lv.here.index - 1, "the user asks me to make room for an emergency "
-                    "vehicle, so I move towards the kerb lane", urgent=True)
     open_nb = _open_neighbours(lv)
     if not open_nb:
         return None
