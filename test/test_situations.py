@@ -30,8 +30,8 @@ def test_the_situation_figures_of_a_record() -> None:
     assert m["mean_speed_mps"] == pytest.approx(sum(speeds) / len(speeds))
     # 10 m a step: the 30 m before the junction entry (step 5) are steps 2-4
     assert m["approach_mps"] == pytest.approx((8.0 + 6.0 + 4.0) / 3)
-    none = situation_metrics(_record(["a_0"] * 4, [3.0] * 4))
-    assert math.isnan(none["kerb_share"]) and math.isnan(none["approach_mps"])
+    inside = situation_metrics(_record([":j_0"] * 4, [3.0] * 4))
+    assert math.isnan(inside["kerb_share"]) and math.isnan(inside["approach_mps"])
 
 
 def test_the_summary_counts_changed_scenes_and_their_direction() -> None:
