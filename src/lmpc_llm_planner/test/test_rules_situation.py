@@ -85,6 +85,19 @@ def test_making_room_still_passes_a_standing_car(road, planner_config, mpc_confi
     assert chosen_label(told, scene) == "change to the left lane"
 
 
+@pytest.mark.parametrize("leader_mps, label", [
+    (2.0, "change to the left lane"),  # crawling: overtaken even while making room
+    (9.0, "continue in lane"),  # slow, but no overtaking while making room
+])
+def test_making_room_overtakes_only_a_crawling_leader(road, planner_config, mpc_config,
+                                                       leader_mps, label):
+    obs = road_obs(road, [car("slow", x_m=95.0, v_mps=leader_mps)], v_mps=10.0)
+    told, scene = ask(obs, planner_config, mpc_config, instruction=AMBULANCE)
+    assert chosen_label(told, scene) == label
+    plain, scene = ask(obs, planner_config, mpc_config)
+    assert chosen_label(plain, scene) == "change to the left lane"  # overtakes either
+
+
 def test_make_room_on_a_single_lane_slows_down(straight_map, obs_factory, planner_config,
                                                mpc_config):
     fast = obs_factory(straight_map, ego_y_m=-90.0, ego_v_mps=12.0)
