@@ -7,6 +7,8 @@ from __future__ import annotations
 import pytest
 from rules_kit import accel_mid, ask, car, chosen_label, road_obs
 
+from lmpc_msgs_py.messages import LaneLink
+
 from lmpc_llm_planner.backends.rules import parse_instruction
 from lmpc_llm_planner.backends.rules.situation import (
     MAKE_ROOM_FRACTION, PEDESTRIAN_APPROACH_MPS, next_junction_m,
@@ -90,7 +92,7 @@ def test_making_room_still_passes_a_standing_car(road, planner_config, mpc_confi
     (9.0, "continue in lane"),  # slow, but no overtaking while making room
 ])
 def test_making_room_overtakes_only_a_crawling_leader(road, planner_config, mpc_config,
-                                                       leader_mps, label):
+                                                      leader_mps, label):
     obs = road_obs(road, [car("slow", x_m=95.0, v_mps=leader_mps)], v_mps=10.0)
     told, scene = ask(obs, planner_config, mpc_config, instruction=AMBULANCE)
     assert chosen_label(told, scene) == label
@@ -118,3 +120,23 @@ def test_a_closed_lane_on_a_single_lane_road_is_noted_and_changes_nothing(
     assert told.action_guidance == plain.action_guidance
     assert told.scenario_encoding == plain.scenario_encoding
     assert "my road has one lane here" in told.reasoning
+
+
+def test_a_closed_lane_the_route_needs_is_kept(road, planner_config, mpc_config):
+    # the route goes on (to N_0) only from the right lane E0_0, which the user says is
+    # closed: leaving it would be undone by the route's lane change at the next decision
+    right, left, back = road.lanes
+    right = right.model_copy(update={"successors": (LaneLink(to_lane="N_0", direction="s"),)})
+    on = right.model_copy(update={"id": "N_0", "edge_id": "N", "index": 0, "successors": (),
+                                  "centerline": ((400.0, -4.8), (600.0, -4.8)),
+                                  "length_m": 200.0})
+    exit_right = road.model_copy(update={"lanes": (right, left, back, on),
+                                         "ego_route": ("E0_0", "N_0")})
+    told, scene = ask(road_obs(exit_right), planner_config, mpc_config,
+                      instruction="the right lane is closed ahead")
+    assert chosen_label(told, scene) == "continue in lane"
+    assert "my route goes on only from it" in told.reasoning
+    # on the plain road (the route ends on this edge) it leaves the closed lane
+    plain, scene = ask(road_obs(road), planner_config, mpc_config,
+                       instruction="the right lane is closed ahead")
+    assert chosen_label(plain, scene) == "change to the left lane"

@@ -71,6 +71,10 @@ class LaneView:
     """The lane of this edge the route candidate ends on (it may jump several lanes)."""
     closed: frozenset[str]
     """Lanes the user said are closed."""
+    route_needs_closed: bool
+    """The route goes on only from closed lanes: the ego keeps to them (leaving one was
+    undone by the route's lane change at the next decision: back and forth every 2.5 s
+    for 95 s, lane dev seed 101)."""
     make_room: bool
     """The user asked to make room for an emergency vehicle: keep to the kerb lane."""
     ok_idx: list[int]
@@ -163,16 +167,17 @@ def lane_view(scene: Scene, intent: Intent) -> Optional[LaneView]:
     # the lanes that continue along the route (and how far this edge still goes)
     continuing = continuing_lanes(scene, here, siblings)
     dist_end_m = max(0.0, here.length_m - ego.lane_pos_m)
-    ok_idx = sorted(ln.index for ln in continuing if ln.id not in closed) or \
-        sorted(ln.index for ln in continuing)
+    open_ok = sorted(ln.index for ln in continuing if ln.id not in closed)
+    ok_idx = open_ok or sorted(ln.index for ln in continuing)
     need = min((abs(i - here.index) for i in ok_idx), default=0)
     toward = None
     if need > 0:
         nearest = min(ok_idx, key=lambda i: (abs(i - here.index), i))
         toward = here.index + (1 if nearest > here.index else -1)
     return LaneView(here=here, siblings=siblings, by_lane=by_lane, route_lane=route_lane,
-                    closed=closed, make_room=intent.make_room, ok_idx=ok_idx, need=need,
-                    toward=toward, dist_end_m=dist_end_m, left_hand=left_hand)
+                    closed=closed, route_needs_closed=bool(closed) and not open_ok,
+                    make_room=intent.make_room, ok_idx=ok_idx, need=need, toward=toward,
+                    dist_end_m=dist_end_m, left_hand=left_hand)
 
 
 def offered_by_lane(scene: Scene, here: Lane) -> dict[str, int]:
@@ -279,7 +284,10 @@ def choose_lane(inp: RuleInputs, plan: Plan, lv: LaneView, lead: LeaderState
     urgent_merge = lv.need > 0 and (style != "aggressive"
                                     or lv.dist_end_m < merge_m * LANE_MERGE_AGGRESSIVE)
     want: Optional[Want] = None
-    if lv.here.id in lv.closed and lv.dist_end_m <= CLOSED_LOOKAHEAD_M:
+    if lv.here.id in lv.closed and lv.route_needs_closed:
+        plan.notes.append("The user says my lane is closed ahead, but my route goes on only "
+                          "from it, so I keep it.")
+    elif lv.here.id in lv.closed and lv.dist_end_m <= CLOSED_LOOKAHEAD_M:
         want = _leave_closed(lv)
     if want is None and lead.blocked and lead.lead is not None:
         want = _pass_blocked(lv, lead.lead)
