@@ -1,16 +1,27 @@
-"""Situational text, measured (issue 20 item 3): the situation figures of an episode record
-and the summary that counts, per family, the scenes a situation changed and how many the
-expected way (``lmpc_bridge.evaluation.situations``)."""
+"""Situational text, measured (issue 20 item 3): the situation figures of an episode record,
+the summary that counts, per family, the scenes a situation changed and how many the
+expected way (``lmpc_bridge.evaluation.situations``), and one development scene per
+situation where the rules reasoner, told it, drives the expected way."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 
-from lmpc_bridge.evaluation.situations import situation_metrics, situation_summary
+from lmpc_bridge.evaluation.scenes import SceneSpec
+from lmpc_bridge.evaluation.situations import (
+    EXPECTED,
+    MIN_CHANGE,
+    situation_metrics,
+    situation_summary,
+)
 from lmpc_bridge.evaluation.style import INSTRUCTION_SETS
 from lmpc_bridge.record import EpisodeRecord, StepRecord
+from lmpc_bridge.runner import run_episode
+from lmpc_bridge.sim import SumoSim
 from lmpc_llm_planner.backends.rules.instruction import parse_instruction
+from lmpc_scripts import methods
 
 
 def _record(lanes: list[str], speeds: list[float]) -> EpisodeRecord:
@@ -55,3 +66,26 @@ def test_the_situation_set_parses_as_its_label_says() -> None:
         assert (label == "make-room") == intent.make_room
         assert (label == "pedestrians") == intent.pedestrians_ahead
         assert intent.style == "normal"  # a situation is not a style
+
+
+@pytest.mark.parametrize("family, seed, label", [
+    ("eoa", 102, "make-room"),  # kerb share 0.01 -> 0.87 (2026-12-03)
+    ("si", 101, "pedestrians"),  # approach speed 11.4 -> 0.5 m/s
+    ("construction", 100, "closure"),  # leaves the closed right lane before the work zone
+])
+def test_each_situation_changes_its_scene_the_expected_way(family: str, seed: int,
+                                                           label: str, tmp_path: Path) -> None:
+    """One development scene per situation, run without and with its text: the figure the
+    situation should move (``EXPECTED``) moves that way, no collision, and the decision
+    log's reasoning says what the text made the rules do."""
+    text = dict(INSTRUCTION_SETS["situations"])[label]
+    key, sign = EXPECTED[label]
+    sim = SumoSim(work_dir=tmp_path / "scenes")
+    figures = {}
+    for instruction in (None, text):
+        wiring = methods.build(SceneSpec("lmpc-rules", family, seed, instruction=instruction))
+        res = run_episode(sim, family=family, seed=seed, controller=wiring.controller,
+                          planner=wiring.planner, max_time_s=120.0)
+        assert res.outcome == "reached", (family, seed, instruction, res.outcome, res.detail)
+        figures[instruction] = situation_metrics(res.record)[key]
+    assert (figures[text] - figures[None]) * sign > MIN_CHANGE[key], figures
