@@ -291,13 +291,15 @@ def choose_lane(inp: RuleInputs, plan: Plan, lv: LaneView, lead: LeaderState
         want = _leave_closed(lv)
     if want is None and lead.blocked and lead.lead is not None:
         want = _pass_blocked(lv, lead.lead)
-    if want is None and lv.make_room:
-        want = _make_room(lv)
     if want is None and urgent_merge and lv.toward is not None:
         if merge_along_route(inp, plan, lv):
             return "change"
         want = Want(lv.toward, f"my route needs {lv.need} lane change(s) within "
                     f"{lv.dist_end_m:.0f} m", urgent=lv.dist_end_m < merge_m)
+    if want is None and lv.make_room:
+        # after the route's own (urgent) change: towards the kerb it eases off for a gap
+        # (lane 23: the make-room change first, never easing off, found no gap for 40 s)
+        want = _make_room(lv)
     if want is None and lead.slow and style != "conservative" and lead.lead is not None \
             and (not lv.make_room
                  or lead.lead.agent.v_mps < CRAWLING_FRACTION * lv.here.speed_limit_mps):
