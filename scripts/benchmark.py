@@ -28,7 +28,10 @@ normal = no instruction, aggressive; ``lmpc_bridge.evaluation.style.INSTRUCTION_
 writes ``styles.csv`` (a row per scene and phrasing, with the style figures: gaps, peak
 deceleration and jerk, accepted lane-change / junction gaps) and ``style_table.md`` (per
 family and style, and the per-scene share whose time follows the style) beside the
-normal outputs (results.csv / table.md of the uninstructed runs).
+normal outputs (results.csv / table.md of the uninstructed runs). ``--instruction-set
+situations`` does the same with situational text (a closed lane, an ambulance to make room
+for, pedestrians at the next junction) and writes ``situations.csv`` and
+``situation_table.md`` (``lmpc_bridge.evaluation.situations``).
 
 ``lmpc-replay`` repeats a finished run's LLM decisions without the model: each scene
 answers from that run's decision log of the scene, matching prompts by hash, with the
@@ -52,8 +55,14 @@ from lmpc_bridge.evaluation.executors import EXECUTORS, ExecutorError
 from lmpc_bridge.evaluation.replay import replay_check
 from lmpc_bridge.evaluation.rows import latency_cells, parse_seeds, read_rows, write_rows
 from lmpc_bridge.evaluation.scenes import RunSettings, run_scenes
+from lmpc_bridge.evaluation.situations import (
+    SITUATION_COLUMNS,
+    situation_summary,
+    situation_table_md,
+)
 from lmpc_bridge.evaluation.style import (
     INSTRUCTION_SETS,
+    SITUATION_SETS,
     STYLE_COLUMNS,
     direction_share,
     style_summary,
@@ -101,8 +110,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                          "); the mpc baseline ignores it")
     ap.add_argument("--instruction-set", choices=sorted(INSTRUCTION_SETS), metavar="NAME",
                     help="run every scene once per phrasing of the set (styles: "
-                         "conservative / none / aggressive, several phrasings each) and "
-                         "write styles.csv and style_table.md")
+                         "conservative / none / aggressive, several phrasings each; situations: "
+                         "none / closed lane / make room / pedestrians) and write "
+                         "styles.csv and style_table.md (situations.csv, situation_table.md)")
     ap.add_argument("--resume", action="store_true",
                     help="keep the rows of OUT/results.csv (an earlier, interrupted run of "
                          "the same code) and run only the scenes it lacks; error rows are "
@@ -306,9 +316,14 @@ def run_instruction_set(args: argparse.Namespace, jobs: list[tuple[str, str, int
         all_rows += rows
         if text is None:
             normal += rows
-    columns = ("family", "seed", "method", "style", "instruction", "outcome", "collision",
-               "fail", "time_s", "overall_cost", *STYLE_COLUMNS, "wall_s", "detail")
-    with open(args.out / "styles.csv", "w", newline="") as fh:
+    situational = args.instruction_set in SITUATION_SETS
+    label = "situation" if situational else "style"
+    for r in all_rows:
+        r[label] = r["style"]
+    columns = ("family", "seed", "method", label, "instruction", "outcome", "collision",
+               "fail", "time_s", "overall_cost",
+               *(SITUATION_COLUMNS if situational else STYLE_COLUMNS), "wall_s", "detail")
+    with open(args.out / f"{label}s.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(sorted(all_rows, key=lambda r: (r["family"], r["method"], r["seed"],
@@ -316,14 +331,15 @@ def run_instruction_set(args: argparse.Namespace, jobs: list[tuple[str, str, int
     parts = []
     for method in sorted({r["method"] for r in all_rows}):
         mine = [r for r in all_rows if r["method"] == method]
-        table = style_table_md(style_summary(mine), direction_share(mine))
+        table = situation_table_md(situation_summary(mine)) if situational else \
+            style_table_md(style_summary(mine), direction_share(mine))
         parts.append(f"### {method}\n\n{table}")
     head = ("Instruction set " + args.instruction_set + ": " + "; ".join(
         f"{s}: {t!r}" if t else f"{s}: no instruction" for s, t in phrasings) + "\n\n")
     text_md = head + "\n".join(parts)
     if interrupted:
         text_md = "PARTIAL: interrupted.\n\n" + text_md
-    (args.out / "style_table.md").write_text(text_md)
+    (args.out / f"{label}_table.md").write_text(text_md)
     print(text_md)
     if normal:
         write_outputs(args, normal, args.out / "decisions", time.monotonic() - t0,

@@ -10,7 +10,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 REPO = Path(__file__).resolve().parents[1]
 RUN_GRAPH = REPO / "scripts" / "run_graph.py"
@@ -563,3 +563,22 @@ def read_until(proc: "subprocess.Popen[str]", prefix: str) -> list[str]:
             break
     assert lines and lines[-1].startswith(prefix), "".join(lines)
     return lines
+
+
+def interrupt_after(proc: "subprocess.Popen[str]", prefix: str,
+                    check: "Callable[[], None] | None" = None) -> str:
+    """Everything ``proc`` printed, stopped with SIGTERM once a line starts with ``prefix``
+    (after ``check()``, an assertion on what is written so far); its group is killed if
+    it still runs 60 s later or the check fails."""
+    lines: list[str] = []
+    rest = ""
+    try:
+        lines = read_until(proc, prefix)
+        if check is not None:
+            check()
+        proc.send_signal(signal.SIGTERM)
+        rest, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    return "".join(lines) + rest

@@ -7,13 +7,12 @@ from __future__ import annotations
 import csv
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from graphkit import REPO, read_until
+from graphkit import REPO, interrupt_after
 
 
 def test_sigterm_writes_the_finished_scenes_and_stops_the_workers(tmp_path: Path) -> None:
@@ -22,18 +21,12 @@ def test_sigterm_writes_the_finished_scenes_and_stops_the_workers(tmp_path: Path
         [sys.executable, str(REPO / "scripts" / "benchmark.py"), "--families", "usi",
          "--seeds", "0-3", "--methods", "mpc", "--workers", "1", "--out", str(out)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    lines: list[str] = []
-    try:
-        lines = read_until(proc, "[1/4]")
-        # written before the whole run ends
+
+    def one_row_written() -> None:  # before the whole run ends
         with open(out / "results.csv") as fh:
             assert len(list(csv.DictReader(fh))) == 1
-        proc.send_signal(signal.SIGTERM)
-        rest, _ = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-    text = "".join(lines) + rest
+
+    text = interrupt_after(proc, "[1/4]", one_row_written)
     assert proc.returncode == 130, text[-2000:]
     assert "interrupted after" in text
     finished = sum(line.startswith("[") and "/4]" in line for line in text.splitlines())

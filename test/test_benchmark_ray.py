@@ -7,7 +7,6 @@ from __future__ import annotations
 import csv
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -16,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from graphkit import REPO, read_until
+from graphkit import REPO, interrupt_after
 
 pytest.importorskip("ray", reason="ray is not installed (the optional 'ray' extra: "
                                   "pip install -e '.[ray]')")
@@ -117,15 +116,7 @@ def test_sigterm_keeps_the_finished_rows_and_stops_ray(tmp_path: Path) -> None:
          "--seeds", "100-103", "--methods", "lmpc-rules", "--workers", "1", "--executor",
          "ray", "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
         text=True, start_new_session=True, env=_env())
-    lines: list[str] = []
-    try:
-        lines = read_until(proc, "[1/4]")
-        proc.send_signal(signal.SIGTERM)
-        rest, _ = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-    text = "".join(lines) + rest
+    text = interrupt_after(proc, "[1/4]")
     assert proc.returncode == 130, text[-2000:]
     finished = sum(line.startswith("[") and "/4]" in line for line in text.splitlines())
     assert 1 <= finished < 4, text[-2000:]

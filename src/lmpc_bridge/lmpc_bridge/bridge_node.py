@@ -86,15 +86,14 @@ class BridgeConfig(BaseModel):
 @dataclass
 class _StepTiming:
     published_wall_s: float
-    control_latency_ms: Optional[float] = None
     control_wall_s: Optional[float] = None
+    """When the first control for the step arrived (None: none yet)."""
 
 
 @dataclass
 class _RunStats:
     decisions: dict[str, str] = field(default_factory=dict)  # id -> source
     solve_ms: list[float] = field(default_factory=list)
-    latency_ms: list[float] = field(default_factory=list)
     late_controls: int = 0
     control_modes: dict[str, int] = field(default_factory=dict)
 
@@ -103,6 +102,18 @@ def _percentiles(values: list[float]) -> dict[str, Optional[float]]:
     if not values:
         return {"median": None, "p99": None, "max": None}
     stats = percentiles(values)
+    return {key: stats[key] for key in ("median", "p99", "max")}
+
+
+CONTROL_WAIT_STAGE = "wait: control (transport + MPC)"
+"""The profile stage of the control cycle: EgoState published -> its Control received."""
+
+
+def _wait_percentiles(profile: dict[str, dict[str, float]]) -> dict[str, Optional[float]]:
+    """The control cycle's median / p99 / max (ms) from the profile (None: no sample)."""
+    stats = profile.get(CONTROL_WAIT_STAGE)
+    if stats is None:
+        return {"median": None, "p99": None, "max": None}
     return {key: stats[key] for key in ("median", "p99", "max")}
 
 
@@ -189,9 +200,8 @@ class BridgeNode(LmpcNode):
             return
         k = round(msg.stamp_s / self.sim.dt_s)
         timing = self.timing.get(k)
-        if timing is not None and timing.control_latency_ms is None:
+        if timing is not None and timing.control_wall_s is None:
             timing.control_wall_s = time.monotonic()
-            timing.control_latency_ms = (timing.control_wall_s - timing.published_wall_s) * 1e3
         if self.latest_control is None or msg.stamp_s >= self.latest_control.stamp_s:
             self.latest_control = msg
         if self.cfg.clock_mode == "sync":
@@ -286,12 +296,11 @@ class BridgeNode(LmpcNode):
             modes = self.stats.control_modes
             modes[control.mode] = modes.get(control.mode, 0) + 1
         timing = self.timing.pop(k, None)
-        if timing is not None and timing.control_latency_ms is not None and control is not None:
-            self.stats.latency_ms.append(timing.control_latency_ms)
-            self.stage_times.add("wait: control (transport + MPC)", timing.control_latency_ms)
-            if timing.control_wall_s is not None:
-                self.stage_times.add("wait: after the control (planner status)",
-                                     (time.monotonic() - timing.control_wall_s) * 1e3)
+        if timing is not None and timing.control_wall_s is not None and control is not None:
+            self.stage_times.add(CONTROL_WAIT_STAGE,
+                                 (timing.control_wall_s - timing.published_wall_s) * 1e3)
+            self.stage_times.add("wait: after the control (planner status)",
+                                 (time.monotonic() - timing.control_wall_s) * 1e3)
         with self.stage_times.stage("sim step"):
             self.sim.step(control)
         status = self.sim.status()
@@ -418,7 +427,7 @@ class BridgeNode(LmpcNode):
             "late_controls": self.stats.late_controls,
             "control_modes": self.stats.control_modes,
             "mpc_solve_ms": _percentiles(self.stats.solve_ms),
-            "control_latency_ms": _percentiles(self.stats.latency_ms),
+            "control_latency_ms": _wait_percentiles(self.stage_times.summary()),
             "dropped_messages": self.counters.get("dropped_messages", 0),
             "step0_epoch_s": self.step0_epoch_s,
             "end_epoch_s": time.time(),

@@ -47,8 +47,18 @@ INSTRUCTION_SETS: dict[str, tuple[tuple[str, Optional[str]], ...]] = {
         ("normal", None),
         ("aggressive", "drive aggressively"),
     ),
+    # situational text (lmpc_bridge.evaluation.situations): the label is the situation
+    "situations": (
+        ("none", None),
+        ("closure", "the right lane is closed ahead"),
+        ("make-room", "an ambulance is coming from behind, make room"),
+        ("pedestrians", "pedestrians are crossing at the next junction"),
+    ),
 }
-"""``benchmark.py --instruction-set NAME``: each scene once per (style, phrasing)."""
+"""``benchmark.py --instruction-set NAME``: each scene once per (label, phrasing); the
+label is a style, or for ``situations`` the situation."""
+SITUATION_SETS = frozenset({"situations"})
+"""The sets whose labels are situations (situations.csv / situation_table.md)."""
 
 
 def _edge_index(lane_id: Optional[str]) -> Optional[tuple[str, str]]:

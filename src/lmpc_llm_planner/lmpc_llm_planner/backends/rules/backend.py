@@ -19,6 +19,7 @@ from .left_turn import left_turn_rule
 from .path import go_rule, path_rule
 from .plan import Plan, RuleInputs, guidance
 from .roundabout import roundabout_rule
+from .situation import situation_rule
 
 
 class RulesBackend:
@@ -107,6 +108,7 @@ def run_rules(inp: RuleInputs, plan: Plan) -> str:
         headway_rule(inp, plan)
     if not plan.speed_set:
         go_rule(inp, plan)
+    situation_rule(inp, plan)  # last: it only lowers the speed the others chose
     return turn
 
 

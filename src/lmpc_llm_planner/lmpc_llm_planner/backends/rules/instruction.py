@@ -2,8 +2,9 @@
 rules, an APPROXIMATION of language understanding: no LLM here).
 
 A style (conservative: longer gaps, safety high, no overtaking; aggressive: shorter
-lane-change gaps, overtaking, late merges — never shorter turn gaps), closed lanes, and
-refused parts (ignore a light, a speed figure), which change nothing."""
+lane-change gaps, overtaking, late merges — never shorter turn gaps), closed lanes, an
+emergency vehicle to make room for, pedestrians crossing at the next junction, and refused
+parts (ignore a light, a speed figure), which change nothing."""
 from __future__ import annotations
 
 import re
@@ -30,6 +31,16 @@ CLOSED_LANE = re.compile(
     r"ends|ending)\b", re.I)
 CLOSED_LANE_REV = re.compile(
     r"\b(?:closed|blocked|shut)\s+(?P<side>right|left)(?:most)?\s+lane\b", re.I)
+MAKE_ROOM = re.compile(
+    r"\b(ambulances?|fire ?(trucks?|engines?)|police( cars?)?|emergency vehicles?|sirens?"
+    r"|blue lights?)\b|\b(make|give|clear) (way|room|a path|the way)\b"
+    r"|\bpull (over|aside|to the side)\b|\blet (it|them|him|her) (pass|through)\b", re.I)
+"""An emergency vehicle behind, or a plain request to make room."""
+PEDESTRIANS = re.compile(
+    r"\b(pedestrians?|people|persons?|children|kids|pupils|walkers|cyclists?)\b[^.;!?]*?"
+    r"\b(cross|crosses|crossing|walk|walking|on the road|in the street)\b"
+    r"|\b(cross ?walks?|zebra crossings?|pedestrian crossings?)\b", re.I)
+"""Pedestrians crossing ahead (the rules read it as: at the next junction)."""
 UNSAFE_REQUEST = re.compile(
     r"\b(ignore|run|skip|disregard)\b[^.;!?]*\b(red|light|lights|signal|signals|rule|"
     r"rules|stop|sign|limit)\b|\b\d+(\.\d+)?\s*(m/s|mps|km/h|kmh|kph|mph)\b", re.I)
@@ -48,6 +59,11 @@ class Intent:
     """"conservative", "normal" or "aggressive"."""
     closed_sides: frozenset[str] = frozenset()
     """"right" / "left": the user says that lane (rightmost / leftmost) is closed ahead."""
+    make_room: bool = False
+    """An emergency vehicle is coming (from behind): keep to the outer lane, slow down
+    where there is no lane to give."""
+    pedestrians_ahead: bool = False
+    """Pedestrians are crossing at the next junction: approach it slowly."""
     refused: tuple[str, ...] = ()
     """Parts of the instruction the rules will not follow (quoted in the reasoning)."""
 
@@ -72,4 +88,6 @@ def parse_instruction(text: Optional[str]) -> Intent:
     sides = {m.group("side").lower() for m in CLOSED_LANE.finditer(text)}
     sides |= {m.group("side").lower() for m in CLOSED_LANE_REV.finditer(text)}
     refused = tuple(m.group(0)[:60] for m in UNSAFE_REQUEST.finditer(text))
-    return Intent(style=style, closed_sides=frozenset(sides), refused=refused)
+    return Intent(style=style, closed_sides=frozenset(sides),
+                  make_room=_mentions(MAKE_ROOM, text),
+                  pedestrians_ahead=_mentions(PEDESTRIANS, text), refused=refused)

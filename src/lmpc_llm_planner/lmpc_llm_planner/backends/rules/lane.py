@@ -41,6 +41,10 @@ SLOW_LEADER_GAIN_MPS = 2.0
 with no leader in range) than the ego's lane for an overtake (aggressive: 1 m/s)."""
 SLOW_LEADER_FRACTION = 0.8
 """A leader counts as slow below this fraction of the speed limit."""
+CRAWLING_FRACTION = 0.4
+"""Making room for an emergency vehicle, the ego still overtakes a leader crawling below
+this fraction of the limit (eoa dev seeds 105, 106, 108: behind a hazard crawling at
+~2 m/s it timed out)."""
 LC_MIN_GAP_M = 6.0
 """Bumper gap to the new leader / follower a lane change needs at least."""
 LC_HEADWAY_S = 0.8
@@ -67,6 +71,12 @@ class LaneView:
     """The lane of this edge the route candidate ends on (it may jump several lanes)."""
     closed: frozenset[str]
     """Lanes the user said are closed."""
+    route_needs_closed: bool
+    """The route goes on only from closed lanes: the ego keeps to them (leaving one was
+    undone by the route's lane change at the next decision: back and forth every 2.5 s
+    for 95 s, lane dev seed 101)."""
+    make_room: bool
+    """The user asked to make room for an emergency vehicle: keep to the kerb lane."""
     ok_idx: list[int]
     """Indices of the lanes that continue along the route (open ones, if any)."""
     need: int
@@ -157,15 +167,16 @@ def lane_view(scene: Scene, intent: Intent) -> Optional[LaneView]:
     # the lanes that continue along the route (and how far this edge still goes)
     continuing = continuing_lanes(scene, here, siblings)
     dist_end_m = max(0.0, here.length_m - ego.lane_pos_m)
-    ok_idx = sorted(ln.index for ln in continuing if ln.id not in closed) or \
-        sorted(ln.index for ln in continuing)
+    open_ok = sorted(ln.index for ln in continuing if ln.id not in closed)
+    ok_idx = open_ok or sorted(ln.index for ln in continuing)
     need = min((abs(i - here.index) for i in ok_idx), default=0)
     toward = None
     if need > 0:
         nearest = min(ok_idx, key=lambda i: (abs(i - here.index), i))
         toward = here.index + (1 if nearest > here.index else -1)
     return LaneView(here=here, siblings=siblings, by_lane=by_lane, route_lane=route_lane,
-                    closed=closed, ok_idx=ok_idx, need=need, toward=toward,
+                    closed=closed, route_needs_closed=bool(closed) and not open_ok,
+                    make_room=intent.make_room, ok_idx=ok_idx, need=need, toward=toward,
                     dist_end_m=dist_end_m, left_hand=left_hand)
 
 
@@ -273,7 +284,10 @@ def choose_lane(inp: RuleInputs, plan: Plan, lv: LaneView, lead: LeaderState
     urgent_merge = lv.need > 0 and (style != "aggressive"
                                     or lv.dist_end_m < merge_m * LANE_MERGE_AGGRESSIVE)
     want: Optional[Want] = None
-    if lv.here.id in lv.closed and lv.dist_end_m <= CLOSED_LOOKAHEAD_M:
+    if lv.here.id in lv.closed and lv.route_needs_closed:
+        plan.notes.append("The user says my lane is closed ahead, but my route goes on only "
+                          "from it, so I keep it.")
+    elif lv.here.id in lv.closed and lv.dist_end_m <= CLOSED_LOOKAHEAD_M:
         want = _leave_closed(lv)
     if want is None and lead.blocked and lead.lead is not None:
         want = _pass_blocked(lv, lead.lead)
@@ -282,7 +296,13 @@ def choose_lane(inp: RuleInputs, plan: Plan, lv: LaneView, lead: LeaderState
             return "change"
         want = Want(lv.toward, f"my route needs {lv.need} lane change(s) within "
                     f"{lv.dist_end_m:.0f} m", urgent=lv.dist_end_m < merge_m)
-    if want is None and lead.slow and style != "conservative" and lead.lead is not None:
+    if want is None and lv.make_room:
+        # after the route's own (urgent) change: towards the kerb it eases off for a gap
+        # (lane 23: the make-room change first, never easing off, found no gap for 40 s)
+        want = _make_room(lv)
+    if want is None and lead.slow and style != "conservative" and lead.lead is not None \
+            and (not lv.make_room
+                 or lead.lead.agent.v_mps < CRAWLING_FRACTION * lv.here.speed_limit_mps):
         want = overtake(inp, lv, lead.lead)
     return want
 
@@ -290,6 +310,16 @@ def choose_lane(inp: RuleInputs, plan: Plan, lv: LaneView, lead: LeaderState
 def _open_neighbours(lv: LaneView) -> list[int]:
     return [i for i in (lv.here.index - 1, lv.here.index + 1)
             if i in lv.siblings and lv.siblings[i].id not in lv.closed]
+
+
+def _make_room(lv: LaneView) -> Optional[Want]:
+    """Towards the kerb lane (index 0) for an emergency vehicle, where the route goes on
+    from it and it is open; not urgent (no easing off for a gap: passing a standing
+    vehicle through an inner lane comes first)."""
+    if lv.here.index == 0 or 0 not in lv.ok_idx:
+        return None  # on it, or the route needs an inner lane here: keep it
+    return Want(lv.here.index - 1, "the user asks me to make room for an emergency "
+                "vehicle, so I move towards the kerb lane")
 
 
 def _leave_closed(lv: LaneView) -> Optional[Want]:
