@@ -165,8 +165,8 @@ def test_a_detour_rollout_from_a_snapshot_is_undone_by_the_restore(tmp_path: Pat
         def detour(scene, mode):  # type: ignore[no-untyped-def]
             chosen = decide(scene, mode)
             if detours and not rolled:
-                options = {o.name: o for o in options_in(scene, planner.space, None,
-                                                          OracleConfig())}
+                offered = options_in(scene, planner.space, None, OracleConfig())
+                options = {o.name: o for o in offered}
                 snap = ep.snapshot()
                 for name in detours:
                     d = option_decision(planner, scene, options[name].wire,
