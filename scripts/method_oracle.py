@@ -291,12 +291,35 @@ def score_rollout(episode: Any, snap: Any, decision: Optional[Decision], config:
     """Roll ``decision`` out from ``snap`` (:func:`roll_out`) and score it with the
     config's scoring (lower is better; +inf: collision, off route, error)."""
     r = roll_out(episode, snap, decision, lookahead_s=config.lookahead_s)
+    return _score(r, snap.time_s, config, pricing)
+
+
+def score_forked(episode: Any, decision: Optional[Decision], config: OracleConfig,
+                 pricing: Pricing) -> float:
+    """:func:`score_rollout` in a forked copy of the process (``Episode.fork``), from
+    the step the episode is in (``begin_step`` done, a planner being asked): no snapshot
+    and no restore, so the episode here goes on exactly as if the rollout had not been
+    made (regret.py; docs/BRANCHING.md)."""
+    start_s, start_step = episode.time_s, episode.sim.step_index
+
+    def branch(ep: Any) -> float:
+        ep.end_step(decision)
+        ep.run(until_s=start_s + config.lookahead_s, planner=None)
+        sim = ep.sim
+        end = sim.observe().ego.dist_to_target_m if sim.outcome == "running" else 0.0
+        r = Rollout(tuple(sim.record().steps[start_step:]), sim.outcome, end)
+        return _score(r, start_s, config, pricing)
+
+    return episode.fork(branch)
+
+
+def _score(r: Rollout, start_s: float, config: OracleConfig, pricing: Pricing) -> float:
     if config.scoring == "episode":
-        return episode_score(r.steps, outcome=r.outcome, start_s=snap.time_s,
+        return episode_score(r.steps, outcome=r.outcome, start_s=start_s,
                              end_dist_m=r.end_dist_m, route_speed=pricing.speed,
                              before_penalty=pricing.before_penalty,
                              before_steps=pricing.before_steps, dt_s=pricing.dt_s)
-    return window_score(r.steps, outcome=r.outcome, start_s=snap.time_s,
+    return window_score(r.steps, outcome=r.outcome, start_s=start_s,
                         end_dist_m=r.end_dist_m, route_speed=pricing.speed,
                         episode_steps=pricing.episode_steps)
 
