@@ -207,3 +207,40 @@ def _meta(d):  # type: ignore[no-untyped-def]
     return DecisionMeta(decision_id=d.decision_id, seq=d.seq, source=d.source, mode=d.mode,
                         latency_s=d.latency_s, tokens_in=d.tokens_in,
                         tokens_out=d.tokens_out, ttl_s=d.ttl_s)
+
+
+def test_a_forked_branch_leaves_the_episode_as_it_was(tmp_path: Path) -> None:
+    """``Episode.fork`` (regret.py's rollouts): the branch runs in a copy of the process
+    and its result comes back; the episode here goes on as if nothing happened (the same
+    run as without the branch), and a branch that raises is a SimError naming it."""
+    from lmpc_bridge.sim import SimError
+
+    def run(branch: bool) -> tuple[list[dict], object]:
+        sim = SumoSim(work_dir=tmp_path / f"scenes{branch}")
+        wiring = methods.build(SceneSpec("mpc", "usi", 100))
+        ep = Episode(sim, family="usi", seed=100, controller=wiring.controller,
+                     state_dir=tmp_path / "states")
+        got = None
+        try:
+            ep.start()
+            ep.run(until_s=1.0)
+            ep.begin_step()
+            if branch:
+                def far(e: Episode) -> tuple[float, int]:
+                    e.end_step(None)
+                    e.run(until_s=9.0)
+                    return e.sim.pose.x_m, len(e.sim.record().steps)
+
+                got = ep.fork(far)
+                with pytest.raises(SimError, match="ZeroDivisionError"):
+                    ep.fork(lambda e: 1 / 0)
+            ep.end_step(None)
+            ep.run(until_s=9.0)
+            return _steps(sim), got
+        finally:
+            sim.close()
+
+    plain, _ = run(False)
+    forked, got = run(True)
+    assert forked == plain and len(plain) == 90
+    assert got == (plain[-1]["x_m"], 90)
