@@ -9,16 +9,18 @@ only what it decides differs. At each instant (``PlannerCore.due``) the oracle
    decision" (the MPC baseline) and the rules reasoner's own answer, then reference
    candidate x acceleration bias x steering bias x weight levels, with the agents'
    attention and predictions of the baseline or of the rules reasoner (``encoding``);
-2. snapshots the episode (``lmpc_bridge.episode``: exact branching) and rolls each option
-   out for ``lookahead_s`` of sim time: the option handed to the same MPC at this
-   step, then no further decision, the scene's own traffic around it;
+2. rolls each option out for ``lookahead_s`` of sim time in a forked copy of the
+   process (``Episode.fork``, :func:`score_forked`: exact branching, docs/BRANCHING.md):
+   the option handed to the same MPC at this step, then no further decision, the
+   scene's own traffic around it;
 3. scores each rollout (:func:`window_score`): the paper's per-step penalties summed over
    the window (priced as in the O.C.), the time used plus the distance still to go at
    the route's speed priced at the O.C.'s time weight; a collision or leaving the route
    scores +inf; ties go to the earlier option (no decision first);
-4. restores the snapshot and applies the best option (no decision: returns nothing).
+4. applies the best option (no decision: returns nothing); the episode itself was never
+   touched by the rollouts.
 
-Deterministic: the rollouts are exact repeats of the episode (docs/BRANCHING.md), the
+Deterministic: the rollouts are exact copies of the episode (docs/BRANCHING.md), the
 options are listed in a fixed order. The planner needs the episode, so it runs only
 in-process (``Episode.attach_episode``).
 """
@@ -277,6 +279,8 @@ class Pricing:
 
     @classmethod
     def at(cls, episode: Any, snap: Any, obs: Any, config: OracleConfig) -> "Pricing":
+        """``snap``: anything with the ``step_index`` of the branch point (a snapshot,
+        or the episode's ``sim`` itself for a forked branch)."""
         speed = route_speed_mps(obs, config.route_speed_cap_mps)
         dt = episode.sim.dt_s
         before = episode.sim.record().steps[:snap.step_index]
@@ -291,12 +295,35 @@ def score_rollout(episode: Any, snap: Any, decision: Optional[Decision], config:
     """Roll ``decision`` out from ``snap`` (:func:`roll_out`) and score it with the
     config's scoring (lower is better; +inf: collision, off route, error)."""
     r = roll_out(episode, snap, decision, lookahead_s=config.lookahead_s)
+    return _score(r, snap.time_s, config, pricing)
+
+
+def score_forked(episode: Any, decision: Optional[Decision], config: OracleConfig,
+                 pricing: Pricing) -> float:
+    """:func:`score_rollout` in a forked copy of the process (``Episode.fork``), from
+    the step the episode is in (``begin_step`` done, a planner being asked): no snapshot
+    and no restore, so the episode here goes on exactly as if the rollout had not been
+    made (regret.py; docs/BRANCHING.md)."""
+    start_s, start_step = episode.time_s, episode.sim.step_index
+
+    def branch(ep: Any) -> float:
+        ep.end_step(decision)
+        ep.run(until_s=start_s + config.lookahead_s, planner=None)
+        sim = ep.sim
+        end = sim.observe().ego.dist_to_target_m if sim.outcome == "running" else 0.0
+        r = Rollout(tuple(sim.record().steps[start_step:]), sim.outcome, end)
+        return _score(r, start_s, config, pricing)
+
+    return episode.fork(branch)
+
+
+def _score(r: Rollout, start_s: float, config: OracleConfig, pricing: Pricing) -> float:
     if config.scoring == "episode":
-        return episode_score(r.steps, outcome=r.outcome, start_s=snap.time_s,
+        return episode_score(r.steps, outcome=r.outcome, start_s=start_s,
                              end_dist_m=r.end_dist_m, route_speed=pricing.speed,
                              before_penalty=pricing.before_penalty,
                              before_steps=pricing.before_steps, dt_s=pricing.dt_s)
-    return window_score(r.steps, outcome=r.outcome, start_s=snap.time_s,
+    return window_score(r.steps, outcome=r.outcome, start_s=start_s,
                         end_dist_m=r.end_dist_m, route_speed=pricing.speed,
                         episode_steps=pricing.episode_steps)
 
@@ -330,16 +357,14 @@ class OraclePlanner(PlannerCore):
         rules = self._ask(scene, mode, "all", {}, attempts)  # an emergency answer too
         options = options_in(scene, self.space, rules, self.oracle)
         ep = self._episode
-        snap = ep.snapshot()
-        pricing = Pricing.at(ep, snap, scene.obs, self.oracle)
+        # each rollout in a forked copy of the process: the episode here is never
+        # restored (a restore is exact only up to SUMO's bookkeeping outside its state
+        # file, docs/BRANCHING.md)
+        pricing = Pricing.at(ep, ep.sim, scene.obs, self.oracle)
         obs = scene.obs
-        try:
-            scores = [score_rollout(ep, snap, None if opt.wire is None else
-                                    self._decision(scene, mode, opt.wire), self.oracle,
-                                    pricing) for opt in options]
-        finally:
-            ep.restore(snap, planner=False)
-            ep.discard(snap)
+        scores = [score_forked(ep, None if opt.wire is None else
+                               self._decision(scene, mode, opt.wire), self.oracle, pricing)
+                  for opt in options]
         best = min(range(len(options)), key=lambda i: (scores[i], i))
         choice = options[best]
         decision = None if choice.wire is None else self._decision(

@@ -8,12 +8,13 @@ much better the best option of the oracle's decision space would have done (docs
 Each scene of ``RUN_DIR/results.csv`` is run again in-process with the recorded method
 (``lmpc-rules`` and ``lmpc-oracle`` are deterministic: the same method repeats the run;
 an LLM method is repeated by ``lmpc-replay`` from ``RUN_DIR/decisions/``), with the run's
-simulated latency and instruction. At every decision instant the episode is snapshotted
-after the planner decided (``lmpc_bridge.episode``), the chosen decision and every option
-of ``method_oracle.decision_options`` are rolled out for the oracle's lookahead with the
-oracle's score (``method_oracle.score_rollout``), the episode is restored and goes on
-with the chosen decision. Regret = chosen score - best score (O.C. units, >= 0: the
-chosen decision is one of the candidates). Options take the chosen decision's
+simulated latency and instruction. At every decision instant, after the planner decided,
+the chosen decision and every option of ``method_oracle.decision_options`` are rolled out
+for the oracle's lookahead with the oracle's score, each in a forked copy of the process
+(``method_oracle.score_forked``, ``Episode.fork``); the episode itself is never restored
+and goes on with the chosen decision exactly as the method's own run did. Regret =
+chosen score - best score (O.C. units, >= 0: the chosen decision is one of the
+candidates). Options take the chosen decision's
 bookkeeping (id, latency, time to live): they differ from it only in content.
 
 Writes OUT/regret.csv (one row per decision), OUT/summary.json, OUT/regret.md and
@@ -48,7 +49,7 @@ from lmpc_scripts.method_oracle import (
     options_in,
     option_decision,
     oracle_meta,
-    score_rollout,
+    score_forked,
 )
 
 COLUMNS = ("family", "seed", "t_s", "mode", "chosen", "best", "chosen_score", "best_score",
@@ -93,8 +94,8 @@ def _content(d: Optional[Decision], baseline: tuple) -> tuple:
 
 class RegretMixin:
     """Mixed into the recorded method's planner class (:func:`tap`): its ``_decide`` is
-    the method's own, followed by the rollouts of the chosen decision and every option
-    from a snapshot taken after it (the episode then goes on with the chosen one)."""
+    the method's own, followed by the rollouts of the chosen decision and every option,
+    each in a forked copy of the process (the episode then goes on with the chosen one)."""
 
     _regret: _Context
 
@@ -127,16 +128,15 @@ class RegretMixin:
             meta = oracle_meta(core, scene, mode, dt, commit=False)
         decisions = [None if o.wire is None else option_decision(core, scene, o.wire, meta,
                                                                  previous) for o in options]
-        snap = ep.snapshot()
-        pricing = Pricing.at(ep, snap, scene.obs, ctx.oracle)
-        try:
-            chosen_score = score_rollout(ep, snap, chosen, ctx.oracle, pricing)
-            scores = [score_rollout(ep, snap, d, ctx.oracle, pricing) for d in decisions]
-            # the chosen one again, after the options: how exactly the branches repeat
-            again = score_rollout(ep, snap, chosen, ctx.oracle, pricing)
-        finally:
-            ep.restore(snap, planner=False)
-            ep.discard(snap)
+        # every rollout in a forked copy of the process (Episode.fork): the episode here
+        # is never restored, so the re-run goes on exactly as the method's own run (a
+        # restore is exact only up to SUMO's bookkeeping outside its state file;
+        # docs/BRANCHING.md)
+        pricing = Pricing.at(ep, ep.sim, scene.obs, ctx.oracle)
+        chosen_score = score_forked(ep, chosen, ctx.oracle, pricing)
+        scores = [score_forked(ep, d, ctx.oracle, pricing) for d in decisions]
+        # the chosen one again, after the options: how exactly the branches repeat
+        again = score_forked(ep, chosen, ctx.oracle, pricing)
         base = _baseline_content(scene, core.space)
         key = _content(chosen, base)
         name = next((o.name for o, d in zip(options, decisions)

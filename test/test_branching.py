@@ -127,3 +127,120 @@ def test_a_snapshot_restores_any_number_of_times_and_a_mid_step_one_too(
         sim.close()
     assert runs[0] == runs[1] == runs[2]
     assert len(runs[0]) == 120
+
+
+def _ego_and_vehicles(sim: SumoSim) -> list[dict]:
+    """Every step record (the ego, its controls, every nearby participant), but the solve
+    time and the `affected` flags (docs/BRANCHING.md: SUMO's follower / junction-foe
+    bookkeeping of the externally moved ego is not in its state)."""
+    out = []
+    for s in sim.record().steps:
+        d = s.model_dump(exclude={"solve_time_ms"})
+        d["nearby"] = [{k: v for k, v in n.items() if k not in ("affected", "affected_reason")}
+                       for n in d["nearby"]]
+        out.append(d)
+    return out
+
+
+def test_a_detour_rollout_from_a_snapshot_is_undone_by_the_restore(tmp_path: Path) -> None:
+    """The oracle's and regret.py's use: at the planner's first instant (usi 100, t = 0),
+    snapshot, roll out 8 s of a lane change and of a steering option, restore, and go on
+    with the planner's own decision: the run equals one without the detours to the last
+    digit. The second simulation of this process: libsumo's static random number
+    generators carry their call counts over from the first (the undisturbed run), and
+    the state file's counts must not (before the fix, vehicle onc2, parsed from the route
+    file at 2.3 s, got another speed factor and the runs parted at 7.3 s)."""
+    from lmpc_scripts.method_oracle import OracleConfig, option_decision, options_in, roll_out
+
+    def run(detours: tuple[str, ...], tag: str) -> tuple[list, list[str]]:
+        sim = SumoSim(work_dir=tmp_path / tag / "scenes")
+        wiring = methods.build(SceneSpec("lmpc-rules", "usi", 100,
+                                         log_path=tmp_path / tag / "log.jsonl"))
+        planner = wiring.planner
+        ep = Episode(sim, family="usi", seed=100, controller=wiring.controller,
+                     planner=planner, state_dir=tmp_path / tag / "states")
+        rolled: list[str] = []
+        decide = planner._decide
+
+        def detour(scene, mode):  # type: ignore[no-untyped-def]
+            chosen = decide(scene, mode)
+            if detours and not rolled:
+                offered = options_in(scene, planner.space, None, OracleConfig())
+                options = {o.name: o for o in offered}
+                snap = ep.snapshot()
+                for name in detours:
+                    d = option_decision(planner, scene, options[name].wire,
+                                        _meta(chosen), planner.last_decision)
+                    r = roll_out(ep, snap, d, lookahead_s=8.0)
+                    rolled.append(f"{name}:{r.outcome}:{len(r.steps)}")
+                ep.restore(snap, planner=False)
+                ep.discard(snap)
+            return chosen
+
+        planner._decide = detour
+        traffic = []  # every SUMO vehicle, near the ego or not
+        try:
+            ep.start()
+            while ep.time_s < 12.0 - 1e-9:
+                ep.step()
+                traffic.append([(v, libsumo.vehicle.getPosition(v), libsumo.vehicle.getSpeed(v))
+                                for v in libsumo.vehicle.getIDList()])
+            return [_ego_and_vehicles(sim), traffic], rolled
+        finally:
+            sim.close()
+
+    undisturbed, _ = run((), "a")
+    detoured, rolled = run(("cand1/a3", "route/s1"), "b")
+    # both options were rolled out the whole 8 s (a lane change to the other lane, a
+    # steering bias)
+    assert rolled == ["cand1/a3:running:80", "route/s1:running:80"]
+    assert len(detoured[0]) == len(undisturbed[0]) == 120
+    for a, b in zip(undisturbed[0], detoured[0]):
+        assert a == b, f"step {a['step']}: the ego or a vehicle near it differs"
+    for i, (a, b) in enumerate(zip(undisturbed[1], detoured[1])):
+        assert a == b, f"step {i + 1}: a vehicle differs after the detours"
+
+
+def _meta(d):  # type: ignore[no-untyped-def]
+    from lmpc_llm_planner.validation import DecisionMeta
+
+    return DecisionMeta(decision_id=d.decision_id, seq=d.seq, source=d.source, mode=d.mode,
+                        latency_s=d.latency_s, tokens_in=d.tokens_in,
+                        tokens_out=d.tokens_out, ttl_s=d.ttl_s)
+
+
+def test_a_forked_branch_leaves_the_episode_as_it_was(tmp_path: Path) -> None:
+    """``Episode.fork`` (regret.py's rollouts): the branch runs in a copy of the process
+    and its result comes back; the episode here goes on as if nothing happened (the same
+    run as without the branch), and a branch that raises is a SimError naming it."""
+    from lmpc_bridge.sim import SimError
+
+    def run(branch: bool) -> tuple[list[dict], object]:
+        sim = SumoSim(work_dir=tmp_path / f"scenes{branch}")
+        wiring = methods.build(SceneSpec("mpc", "usi", 100))
+        ep = Episode(sim, family="usi", seed=100, controller=wiring.controller,
+                     state_dir=tmp_path / "states")
+        got = None
+        try:
+            ep.start()
+            ep.run(until_s=1.0)
+            ep.begin_step()
+            if branch:
+                def far(e: Episode) -> tuple[float, int]:
+                    e.end_step(None)
+                    e.run(until_s=9.0)
+                    return e.sim.pose.x_m, len(e.sim.record().steps)
+
+                got = ep.fork(far)
+                with pytest.raises(SimError, match="ZeroDivisionError"):
+                    ep.fork(lambda e: 1 / 0)
+            ep.end_step(None)
+            ep.run(until_s=9.0)
+            return _steps(sim), got
+        finally:
+            sim.close()
+
+    plain, _ = run(False)
+    forked, got = run(True)
+    assert forked == plain and len(plain) == 90
+    assert got == (plain[-1]["x_m"], 90)

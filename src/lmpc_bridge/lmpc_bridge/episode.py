@@ -19,11 +19,13 @@ from __future__ import annotations
 import itertools
 import math
 import os
+import pickle
+import sys
 import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Callable, Optional, TypeVar
 
 from lmpc_msgs_py.messages import Control, Decision
 from lmpc_msgs_py.observation import Observation
@@ -31,6 +33,7 @@ from lmpc_msgs_py.observation import Observation
 from lmpc_bridge.sim import SimError, SimState, SumoSim
 
 _NO_PLANNER = object()
+_T = TypeVar("_T")
 
 
 def _finite(control: Control) -> bool:
@@ -193,6 +196,45 @@ class Episode:
         loop["solve_ms"] = list(snap.loop["solve_ms"])
         loop["wall_ms"] = list(snap.loop["wall_ms"])
         self._loop = loop
+
+    def fork(self, fn: Callable[["Episode"], _T]) -> _T:
+        """``fn(episode)`` run in a forked copy of this process, its (picklable) result
+        returned; this process's episode is left exactly as it was (POSIX ``fork``).
+
+        A branch without a restore: the copy carries everything in memory, SUMO's own
+        bookkeeping that its state file lacks included (its best-lanes cache, the
+        externally moved ego's links; docs/BRANCHING.md), so the branch is exact and the
+        episode goes on as if it had not been taken. Raises ``SimError`` when ``fn``
+        raised (named) or the copy died."""
+        if not hasattr(os, "fork"):
+            raise SimError("Episode.fork needs os.fork (POSIX)")
+        sys.stdout.flush()
+        sys.stderr.flush()
+        read_fd, write_fd = os.pipe()
+        pid = os.fork()
+        if pid == 0:  # the copy: run, send the result, leave without any clean-up
+            code = 0
+            try:
+                os.close(read_fd)
+                try:
+                    payload = pickle.dumps((True, fn(self)))
+                except BaseException as exc:  # noqa: BLE001 - reported to the parent
+                    payload = pickle.dumps((False, f"{type(exc).__name__}: {exc}"[:500]))
+                with os.fdopen(write_fd, "wb") as fh:
+                    fh.write(payload)
+            except BaseException:  # noqa: BLE001
+                code = 1
+            os._exit(code)
+        os.close(write_fd)
+        with os.fdopen(read_fd, "rb") as fh:
+            data = fh.read()
+        os.waitpid(pid, 0)
+        if not data:
+            raise SimError("the forked branch died without a result")
+        ok, value = pickle.loads(data)
+        if not ok:
+            raise SimError(f"the forked branch failed: {value}")
+        return value
 
     @staticmethod
     def discard(snap: EpisodeSnapshot) -> None:
