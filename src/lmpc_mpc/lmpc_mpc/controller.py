@@ -79,6 +79,9 @@ two are farther apart than this at some step (see ``MpcController._problem``).""
 _HARD_DECEL_FRACTION = 0.8
 """A crossing the ego cannot clear before the agent arrives is yielded to while a stop
 at this fraction of the maximum deceleration still ends before it (else: commit)."""
+_ZONE_TAIL_STEPS = 30
+"""A crossing agent still on the ego's path at the horizon's end: its conflict zone is
+taken from its forecast this many steps further (``MpcController._lead_limits``)."""
 _COMMIT_HOLD_S = 6.0
 """Once the ego commits to pass ahead of a crossing agent, it keeps that commitment this
 long (sim time) while the agent stays a conflict, so it does not stop half-way."""
@@ -247,6 +250,8 @@ class MpcController:
         """Agent id -> (sim time built, lane id then, control points) of the baseline
         prediction curve (see ``_CANDIDATE_REUSE_S``)."""
         self._rebuilds_left = _REBUILDS_PER_STEP
+        self._zone_tail: dict[str, np.ndarray] = {}
+        """Obstacle id -> its forecast beyond the horizon (``_zone_forecast``), this step."""
         self._route_s: Optional[tuple[int, float, float]] = None
         """(id of the map, sim time, arc length) of the ego's last route progress: the
         baseline reference starts there or later (monotone, see ``route_progress``)."""
@@ -464,6 +469,7 @@ class MpcController:
         preds = {p.agent_id: p.trajectory.control_points
                  for p in (decision.agent_predictions if decision is not None else ())}
         self._rebuilds_left = _REBUILDS_PER_STEP
+        self._zone_tail = {}
         t = ego.stamp_s
         # close agents with a prediction get the MPC's own forecast too (or still do)
         hedged = {a.id for a in agents[:slots] if a.id in preds and (
@@ -478,17 +484,15 @@ class MpcController:
             own = self._agent_curves[ag.id][2] if ag.v_mps >= 0.05 and (
                 ag.id not in preds or ag.id in hedged) else None
             cps = preds.get(ag.id, own)
-            fc = forecast(ag, cps, map_=obs.map, horizon=n, dt_s=cfg.dt_s,
-                          lookahead_m=cfg.lookahead_m)
-            obstacles.append(Obstacle(ag.id, fc.xy_m, ag.length_m, ag.width_m))
+            fc = self._zone_forecast(ag.id, ag, cps, obs)
+            obstacles.append(Obstacle(ag.id, fc, ag.length_m, ag.width_m))
             speeds.append(ag.v_mps)
             if ag.id in hedged:
                 # a close agent is also kept clear of along the MPC's own forecast: the
                 # decision's prediction of it is one hypothesis, not a licence (a weak
                 # model's "the stopped car ahead changes lanes" let the ego drive into it)
-                mine = forecast(ag, own, map_=obs.map, horizon=n, dt_s=cfg.dt_s,
-                                lookahead_m=cfg.lookahead_m).xy_m
-                if float(np.max(np.hypot(*(mine - fc.xy_m).T))) > _HEDGE_APART_M:
+                mine = self._zone_forecast(ag.id + OWN_SUFFIX, ag, own, obs)
+                if float(np.max(np.hypot(*(mine - fc).T))) > _HEDGE_APART_M:
                     # held like the floor: an obstacle flickering in and out of the
                     # problem from step to step made the plan jump (a spider-net junction)
                     self._hedge_until[ag.id] = t + cfg.safety_floor_hold_s
@@ -552,6 +556,18 @@ class MpcController:
                                  bias[0], ref.states[:, 3], min(v_limit, ref_v_cap)),
                              obstacles=tuple(obstacles))
         return problem, tuple(a.id for a in agents[:slots]), ref_id
+
+    def _zone_forecast(self, name: str, ag: Agent, cps: Optional[Sequence[Sequence[float]]],
+                       obs: Observation) -> np.ndarray:
+        """The agent's forecast over the horizon (N+1 rows); the forecast of the next
+        ``_ZONE_TAIL_STEPS`` steps beyond it is kept under ``name`` for the crossing rule
+        (``_lead_limits``: where a conflict zone the horizon cuts off goes on)."""
+        cfg = self.config
+        n = cfg.horizon
+        xy = forecast(ag, cps, map_=obs.map, horizon=n + _ZONE_TAIL_STEPS, dt_s=cfg.dt_s,
+                      lookahead_m=cfg.lookahead_m).xy_m
+        self._zone_tail[name] = xy[n + 1:]
+        return xy[: n + 1]
 
     def _bias_profile(self, bias_mps2: float, ref_v_mps: np.ndarray,
                       v_max_mps: float) -> Optional[np.ndarray]:
@@ -617,6 +633,7 @@ class MpcController:
         s_all = s_all.reshape(len(obstacles), n + 1)
         d_all = d_all.reshape(len(obstacles), n + 1)
         crossing: list[tuple[str, float, float, int, int]] = []
+        tails = self._zone_tails(line, obstacles)
         for i, (ob, v) in enumerate(zip(obstacles, speeds_mps)):
             lat_clear = 0.5 * (veh.width_m + ob.width_m) + cfg.safety_lateral_gap_m
             gap = cfg.safety_gap_m + 0.5 * (veh.length_m + ob.length_m)
@@ -624,7 +641,17 @@ class MpcController:
             on = (d_all[i] < lat_clear) & (s_k > 0.0) & (s_k < line.length_m - 1e-6)
             if v < _BESIDE_STANDING_MPS and not np.any(d_all[i] < lat_clear):
                 self._beside.add(i)  # standing beside the path: no headway (``Obstacle.beside``)
+            s_t, d_t = tails[i]
+            on_t = (d_t < lat_clear) & (s_t > 0.0) & (s_t < line.length_m - 1e-6)
             if not np.any(on):
+                if np.any(on_t) and v >= _BESIDE_STANDING_MPS:
+                    # arriving on our path only beyond the horizon (an ARRIVING agent):
+                    # its zone from the first step it is on our path, k_first > N
+                    k0 = int(np.argmax(on_t))
+                    run = on_t[k0:]
+                    run_s = s_t[k0:][: int(np.argmin(run)) if not np.all(run) else len(run)]
+                    crossing.append((ob.obstacle_id, float(np.min(run_s)) - gap,
+                                     float(np.max(run_s)) + gap, n + 1 + k0, n))
                 continue
             if on[0] and np.all(np.diff(s_k[on]) >= -1e-6):
                 # a vehicle ahead going our way: follow it at gap + headway
@@ -634,8 +661,16 @@ class MpcController:
                 continue
             # crossing or oncoming: its zone on our path and the last step it is there
             k_last = min(n, int(np.max(np.nonzero(on)[0])) + hold_steps)
-            crossing.append((ob.obstacle_id, float(np.min(s_k[on])) - gap,
-                             float(np.max(s_k[on])) + gap, int(np.argmax(on)), k_last))
+            s_on = s_k[on]
+            if on[-1] and len(on_t):
+                # still on our path at the horizon's end: the zone goes on where the
+                # horizon cuts it off. Without this, an oncoming car's zone (met in a left
+                # turn) grew toward the ego by ~1 m a step as the car came into the
+                # horizon: the zone entry the ego yielded to was ahead of the true one
+                run = int(np.argmin(on_t)) if not np.all(on_t) else len(on_t)
+                s_on = np.concatenate([s_on, s_t[:run]])
+            crossing.append((ob.obstacle_id, float(np.min(s_on)) - gap,
+                             float(np.max(s_on)) + gap, int(np.argmax(on)), k_last))
         v0 = self._ego_v_mps
         comfort_m = v0 ** 2 / (2.0 * _COMFORT_DECEL_MPS2)
         hard_m = v0 ** 2 / (2.0 * _HARD_DECEL_FRACTION * veh.max_decel_mps2)
@@ -652,6 +687,17 @@ class MpcController:
             clears = s_enter < hard_m or \
                 _time_to_m(s_exit, v0, cfg.reference_accel_mps2) <= k_first * cfg.dt_s
             since = self._committed.get(oid)
+            if k_first > n:
+                # an ARRIVING agent (on our path only beyond the horizon): yielded to only
+                # when the ego cannot clear its zone before it arrives and can still stop
+                # comfortably before the zone. Otherwise the ego started into a left turn
+                # (from a stop for pedestrians) that takes ~5 s to clear while an oncoming
+                # car 5 s away was not yet in the horizon, then met it in the zone (si 24)
+                if s_enter >= comfort_m and _time_to_m(
+                        s_exit, v0, cfg.reference_accel_mps2) > k_first * cfg.dt_s:
+                    limit[:] = np.minimum(limit, s_enter)
+                    self._yielded.append(oid.removesuffix(OWN_SUFFIX))
+                continue
             if since is not None and 0.0 <= self._now_s - since <= _COMMIT_HOLD_S and clears:
                 # committed earlier: as the ego slows, the comfortable stopping distance
                 # shrinks below s_enter; yielding then would stop it half-way, so hold on
@@ -672,6 +718,22 @@ class MpcController:
             limit[: k_last + 1] = np.minimum(limit[: k_last + 1], s_enter)
             self._yielded.append(oid.removesuffix(OWN_SUFFIX))
         return None if not np.any(np.isfinite(limit)) else limit
+
+    def _zone_tails(self, line: _Polyline, obstacles: list[Obstacle]
+                    ) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per obstacle, the projections (s, d) on the path of its forecast beyond the
+        horizon (``_zone_forecast``; empty for obstacles without one), in one go."""
+        tails = [self._zone_tail.get(ob.obstacle_id) for ob in obstacles]
+        sizes = [0 if t is None else len(t) for t in tails]
+        empty = (np.zeros(0), np.zeros(0))
+        if not any(sizes):
+            return [empty] * len(obstacles)
+        s, d = line.project_many(np.concatenate([t for t in tails if t is not None and len(t)]))
+        out, at = [], 0
+        for k in sizes:
+            out.append((s[at:at + k], d[at:at + k]) if k else empty)
+            at += k
+        return out
 
     def _held_by(self, v_mps: float, accel_mps2: float) -> tuple[str, ...]:
         """Leaders (``_lead_limits``) that hold the reference back within the horizon: their
@@ -719,8 +781,8 @@ class MpcController:
             if ag.id in in_ids and (ag.id not in preds or ag.id + OWN_SUFFIX in placed):
                 continue  # already avoided along the MPC's own forecast
             own = self._baseline_curve(obs, ag) if ag.v_mps >= 0.05 else None
-            mine = forecast(ag, own, map_=obs.map, horizon=n, dt_s=cfg.dt_s,
-                            lookahead_m=cfg.lookahead_m).xy_m
+            name = ag.id + OWN_SUFFIX if ag.id in placed else ag.id
+            mine = self._zone_forecast(name, ag, own, obs)
             s_k, d_k = line.project_many(mine)
             lat = 0.5 * (veh.width_m + ag.width_m) + cfg.safety_lateral_gap_m
             if not on_path(s_k, d_k, lateral_clear_m=lat, reach_m=reach,
@@ -730,7 +792,6 @@ class MpcController:
             if theirs is not None and float(np.max(np.hypot(*(mine - theirs.xy_m).T))) \
                     <= _HEDGE_APART_M:
                 continue  # the decision's prediction agrees with the own forecast
-            name = ag.id + OWN_SUFFIX if theirs is not None else ag.id
             obstacles.append(Obstacle(name, mine, ag.length_m, ag.width_m))
             speeds.append(ag.v_mps)
             added.append(ag.id)
