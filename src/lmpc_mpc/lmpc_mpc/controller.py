@@ -82,6 +82,9 @@ at this fraction of the maximum deceleration still ends before it (else: commit)
 _ZONE_TAIL_STEPS = 30
 """A crossing agent still on the ego's path at the horizon's end: its conflict zone is
 taken from its forecast this many steps further (``MpcController._lead_limits``)."""
+_BRAKE_INTO_GAP = 1.0
+"""The crossing rule's stops may end this fraction of ``safety_gap_m`` inside a conflict
+zone's margin: "cannot stop before the zone" counts from the physical zone."""
 _COMMIT_HOLD_S = 6.0
 """Once the ego commits to pass ahead of a crossing agent, it keeps that commitment this
 long (sim time) while the agent stays a conflict, so it does not stop half-way."""
@@ -684,16 +687,23 @@ class MpcController:
                 for other, lo, hi, _, _ in crossing:
                     if other != oid and lo < s_enter < hi:
                         s_enter, moved = lo, True
-            clears = s_enter < hard_m or \
+            # "cannot stop before it anyway" counts from the physical zone (the safety gap
+            # in front of it may be braked into): an ego standing or creeping at the
+            # zone's edge (where a yield had held it) otherwise found itself "unable to
+            # stop" a few cm inside the gap and committed in front of the car it had
+            # waited for
+            into_gap = _BRAKE_INTO_GAP * cfg.safety_gap_m
+            clears = s_enter + into_gap < hard_m or \
                 _time_to_m(s_exit, v0, cfg.reference_accel_mps2) <= k_first * cfg.dt_s
             since = self._committed.get(oid)
             if k_first > n:
                 # an ARRIVING agent (on our path only beyond the horizon): yielded to only
                 # when the ego cannot clear its zone before it arrives and can still stop
-                # comfortably before the zone. Otherwise the ego started into a left turn
-                # (from a stop for pedestrians) that takes ~5 s to clear while an oncoming
-                # car 5 s away was not yet in the horizon, then met it in the zone (si 24)
-                if s_enter >= comfort_m and _time_to_m(
+                # comfortably before the physical zone. Otherwise the ego started into a
+                # left turn (from a stop for pedestrians) that takes ~5 s to clear while an
+                # oncoming car 5 s away was not yet in the horizon, then met it in the
+                # zone (si 24 at latency 0)
+                if s_enter + into_gap >= comfort_m and _time_to_m(
                         s_exit, v0, cfg.reference_accel_mps2) > k_first * cfg.dt_s:
                     limit[:] = np.minimum(limit, s_enter)
                     self._yielded.append(oid.removesuffix(OWN_SUFFIX))
