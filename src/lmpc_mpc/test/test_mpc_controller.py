@@ -85,7 +85,10 @@ def test_oncoming_crossing_car_ego_waits(solver: MpcSolver) -> None:
         return [S.agent("on", x_m=-1.6, y_m=y, yaw_rad=-math.pi / 2, v_mps=10.0,
                         lane_id="N_in_0" if y > 8.0 else ":J_3_0")]
 
-    log = _run(_ctrl(solver), m, (1.6, -25.0, math.pi / 2, 3.0), 80, oncoming)
+    # 90 steps: since the stop counts from the physical zone (``_BRAKE_INTO_GAP``) the
+    # ego no longer commits while creeping at the zone's edge with the car still in the
+    # junction (it did at 4.0 s, car at y = 0); it goes ~0.8 s later
+    log = _run(_ctrl(solver), m, (1.6, -25.0, math.pi / 2, 3.0), 90, oncoming)
     gaps = [math.hypot(x[0] - a.x_m, x[1] - a.y_m)
             for (t, x, _) in log for a in oncoming(t + CFG.dt_s)]
     assert min(gaps) > 2.5  # boxes never touch (it passes in its own lane)
@@ -524,3 +527,36 @@ def _headway_problem(ob, ref):
                       reference=ref, reference_curvature_1pm=np.zeros(n + 1),
                       weights=CFG.decision_space.weights_for(None), bias=(0.0, 0.0),
                       obstacles=(ob,))
+
+
+def _oncoming_from(y0_m: float) -> Callable[[float], list[Agent]]:
+    """A car southbound at 10 m/s on the oncoming lane (x = -1.6) from y = ``y0_m``."""
+    def agents(t: float) -> list[Agent]:
+        y = y0_m - 10.0 * t
+        lane = "N_in_0" if y > 8.0 else (":J_3_0" if y > -8.0 else "S_out_0")
+        return [S.agent("on", x_m=-1.6, y_m=y, yaw_rad=-math.pi / 2, v_mps=10.0,
+                        lane_id=lane)]
+    return agents
+
+
+@pytest.mark.parametrize("y0_m", [45.0, 50.0])
+def test_left_turn_from_a_stop_waits_for_a_car_beyond_the_horizon(
+        solver: MpcSolver, y0_m: float) -> None:
+    """The ego stands at the stop line to turn left (~5 s to clear the oncoming lane from
+    rest); the oncoming car is 4.5-5 s away, beyond the 3 s horizon. The crossing rule
+    looks past the horizon (``_ZONE_TAIL_STEPS``): the ego waits, without hard braking,
+    and never stands in the oncoming lane while the car is near (si 24 at latency 0).
+    With the look past the horizon off (``_ZONE_TAIL_STEPS`` = 0), it starts, meets the
+    car's zone, brakes at -6 m/s^2 and commits in front of it; with the stop counted
+    from the zone's margin (``_BRAKE_INTO_GAP`` = 0), an ego held at the zone's edge
+    creeps a few cm in, is "unable to stop", commits in front of the car and brakes
+    (both cases fail either way)."""
+    agents = _oncoming_from(y0_m)
+    log = _run(_ctrl(solver), S.four_way_junction(), (1.6, -10.5, math.pi / 2, 0.0), 105,
+               agents)
+    assert min(c.accel_mps2 for _, _, c in log) > -3.0
+    for t, x, _ in log:
+        car_y = agents(t + CFG.dt_s)[0].y_m
+        if -8.0 <= car_y <= 12.0:  # the car near or in the junction
+            assert x[0] > 0.5, (t, x, car_y)  # the ego out of its lane
+    assert log[-1][1][0] < -3.0  # and then it turns left
