@@ -560,3 +560,41 @@ def test_left_turn_from_a_stop_waits_for_a_car_beyond_the_horizon(
         if -8.0 <= car_y <= 12.0:  # the car near or in the junction
             assert x[0] > 0.5, (t, x, car_y)  # the ego out of its lane
     assert log[-1][1][0] < -3.0  # and then it turns left
+
+
+def _first_step(solver: MpcSolver, agents: Sequence[Agent], *, ego_y_m: float,
+                v_mps: float) -> tuple[MpcController, float]:
+    """One step of a fresh controller: the ego northbound on S_in_0 (left turn ahead)."""
+    ctrl = _ctrl(solver)
+    ego = S.ego_state(x_m=1.6, y_m=ego_y_m, yaw_rad=math.pi / 2, v_mps=v_mps, stamp_s=0.0,
+                      seq=0)
+    ctl = ctrl.compute(S.observation(S.four_way_junction(), ego, agents))
+    return ctrl, ctl.accel_mps2
+
+
+def test_time_to_clear_a_turn_counts_the_slowing_for_the_curve(solver: MpcSolver) -> None:
+    """12 m/s, 20 m before the stop line of a left turn; an oncoming car at 10 m/s meets
+    the turn in ~3 s. At the approach speed the ego would clear its zone in ~2.2 s and
+    would commit; slowing for the curve (the reference's lateral-acceleration cap) it
+    needs ~4 s, so it yields (usi 117 at a 2.5 s latency, dev seeds: it turned in front
+    of the car)."""
+    car = S.agent("on", x_m=-1.6, y_m=30.0, yaw_rad=-math.pi / 2, v_mps=10.0,
+                  lane_id="N_in_0")
+    ctrl, accel = _first_step(solver, [car], ego_y_m=-28.0, v_mps=12.0)
+    assert ctrl._time_along(30.0) > 3.0  # at 12 m/s and more, 30 m would take < 2.5 s
+    assert "on" in ctrl._yielded and "on" not in ctrl._committed
+    assert accel < 0.0
+
+
+def test_a_follower_closing_in_is_no_crossing_zone(solver: MpcSolver) -> None:
+    """The same yield with a faster car close behind the ego in its lane: the follower
+    enters the ego's path from behind; taken as a crossing agent, its zone (starting
+    behind the ego) moved every other zone's start behind the ego, and the ego
+    committed in front of the oncoming car."""
+    car = S.agent("on", x_m=-1.6, y_m=30.0, yaw_rad=-math.pi / 2, v_mps=10.0,
+                  lane_id="N_in_0")
+    follower = S.agent("follower", x_m=1.6, y_m=-38.0, yaw_rad=math.pi / 2, v_mps=15.0,
+                       lane_id="S_in_0")
+    ctrl, accel = _first_step(solver, [car, follower], ego_y_m=-28.0, v_mps=12.0)
+    assert "follower" in ctrl.agent_predictions  # attended: the MPC keeps clear of it
+    assert "on" in ctrl._yielded and not ctrl._committed
