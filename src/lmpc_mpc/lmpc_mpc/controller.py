@@ -226,6 +226,8 @@ class MpcController(CrossingRules):
         """Agent id -> (sim time built, lane id then, control points) of the baseline
         prediction curve (see ``_CANDIDATE_REUSE_S``)."""
         self._rebuilds_left = _REBUILDS_PER_STEP
+        self._lane_change_refused: dict[str, tuple[str, ...]] = {}
+        """Decision id -> agents its lane change was refused for (``_lane_change_kept``)."""
         self._zone_tail: dict[str, np.ndarray] = {}
         self._timing: tuple = (np.zeros((2, 2)), 0.0, None)
         """(this step's path, its speed cap, the timing profile ``_time_along`` built)."""
@@ -307,6 +309,7 @@ class MpcController(CrossingRules):
         self._plan = self._plan_pred = None
         self._plan_age = 0
         self._committed.clear()
+        self._lane_change_refused.clear()
         self._floor_until.clear()
         self._hedge_until.clear()
         self._curve = None
@@ -404,6 +407,7 @@ class MpcController(CrossingRules):
         # a candidate that leaves the route where the route goes on is not followed: the
         # route reference instead, with the decision's weights and speed guidance
         leave = self._route_leave(obs, decision) if decision is not None else None
+        lane_change_refused: tuple[str, ...] = ()
         if decision is not None and leave is None:
             pts = self._decision_curve(obs, decision)
             # the curve starts where the ego was when the planner looked: go on from
@@ -412,6 +416,12 @@ class MpcController(CrossingRules):
             path = np.vstack([ego_xy, pts[i + 1:]]) if i + 1 < len(pts) else \
                 np.vstack([ego_xy, ego_xy + [math.cos(ego.yaw_rad), math.sin(ego.yaw_rad)]])
             ref_id = decision.ego_trajectory.candidate_id
+            kept = self._lane_change_kept(obs, decision, path) \
+                if cfg.stale_decision_check else None
+            if kept is not None:
+                # its target lane's gap closed: the own lane instead (crossing.py)
+                path, lane_change_refused = kept
+                ref_id = None
         else:
             cand = route_candidate(obs.map, ego, lookahead_m=cfg.lookahead_m,
                                    progress_m=self._progress(obs))
@@ -420,7 +430,7 @@ class MpcController(CrossingRules):
         if decision is not None:
             weights = cfg.decision_space.weights_for(decision.weights)
             bias = self._decision_bias(decision)
-            if leave is not None:
+            if leave is not None or lane_change_refused:
                 bias = (bias[0], 0.0)  # its steer bias belongs to the manoeuvre not taken
             # the action guidance shapes the reference's speed profile too: a braking
             # bias (below the neutral interval) brakes the reference to a stop at that
@@ -513,7 +523,8 @@ class MpcController(CrossingRules):
             refused = tuple(dict.fromkeys(list(self._yielded) + list(held)))
             bias = (0.0, bias[1])
             ref_acc = cfg.reference_accel_mps2
-        self._note_stale(decision, StaleVerdict(reattended=reattended, go_refused_for=refused))
+        self._note_stale(decision, StaleVerdict(reattended=reattended, go_refused_for=refused,
+                                                lane_change_refused_for=lane_change_refused))
         ref = timed_reference(path, v0_mps=ego.v_mps, v_max_mps=min(v_limit, ref_v_cap),
                               a_max_mps2=ref_acc, a_dec_mps2=ref_dec,
                               a_lat_max_mps2=cfg.reference_lat_accel_mps2, horizon=n,

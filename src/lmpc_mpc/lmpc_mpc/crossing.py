@@ -8,8 +8,8 @@ own state (``_committed``, ``_yielded``, ``_leaders``, ``_beside``, ``_zone_tail
 - ``_lead_limits``: per step, how far the reference may go: behind leaders, and before
   the conflict zone of a crossing / oncoming agent the ego yields to (the crossing
   rule: commit or yield, zones beyond the horizon, arriving agents);
-- ``_reattend_stale`` / ``_note_stale`` / ``_held_by``: the stale-decision check
-  (``lmpc_mpc.stale``).
+- ``_reattend_stale`` / ``_note_stale`` / ``_held_by`` / ``_lane_change_kept``: the
+  stale-decision check (``lmpc_mpc.stale``).
 """
 from __future__ import annotations
 
@@ -24,9 +24,16 @@ from lmpc_msgs_py.vehicle import VehicleParams
 from lmpc_mpc.config import MpcConfig
 from lmpc_mpc.mirrors import OWN_SUFFIX
 from lmpc_mpc.prediction import forecast
-from lmpc_mpc.reference import _path_geometry, _Polyline, braking_envelope
+from lmpc_mpc.reference import (
+    _path_geometry,
+    _Polyline,
+    braking_envelope,
+    candidates_for_pose,
+    closest_heading,
+    lane_at,
+)
 from lmpc_mpc.solver import Obstacle
-from lmpc_mpc.stale import StaleRecord, StaleVerdict, on_path, reach_m
+from lmpc_mpc.stale import StaleRecord, StaleVerdict, lane_change_gap, on_path, reach_m
 
 _STALE_LOG_DECISIONS = 256
 """The stale check's record is kept for this many decisions (the newest)."""
@@ -48,6 +55,8 @@ zone's margin: "cannot stop before the zone" counts from the physical zone."""
 _COMMIT_HOLD_S = 6.0
 """Once the ego commits to pass ahead of a crossing agent, it keeps that commitment this
 long (sim time) while the agent stays a conflict, so it does not stop half-way."""
+_LANE_CHANGE_AHEAD_M = 25.0
+"""A decision's curve that is in another lane this far ahead is a lane change."""
 _COMFORT_DECEL_MPS2 = 3.0
 """A yellow light is run through when stopping would need more than this."""
 
@@ -76,6 +85,7 @@ class CrossingRules:
     _zone_tail: dict[str, np.ndarray]
     _timing: tuple
     _ego_v_mps: float
+    _lane_change_refused: dict[str, tuple[str, ...]]
     _now_s: float
     stale: StaleVerdict
     stale_log: dict[str, StaleRecord]
@@ -328,3 +338,48 @@ class CrossingRules:
         rec.add(self._now_s, verdict)
         if len(self.stale_log) > _STALE_LOG_DECISIONS:
             del self.stale_log[next(iter(self.stale_log))]
+
+    def _lane_change_kept(self, obs: Observation, decision: Decision, path: np.ndarray
+                          ) -> Optional[tuple[np.ndarray, tuple[str, ...]]]:
+        """The stale check's lane-change part (``lmpc_mpc.stale.lane_change_gap``): when
+        the decision's ``path`` leads into a neighbour lane of the ego's edge and an
+        agent in that lane is beside the ego or would close the gap, the ego's own-lane
+        path and those agents (kept for the rest of the decision, so the ego does not
+        swing back and forth); else None. Once the ego's centre is in the target lane
+        its lane is the target lane: the change goes on."""
+        ego, cfg, veh = obs.ego, self.config, self.vehicle
+        own = lane_at(obs.map, x_m=ego.x_m, y_m=ego.y_m, yaw_rad=ego.yaw_rad,
+                      lane_id=ego.lane_id)
+        if own is None or own.internal:
+            return None
+        held = self._lane_change_refused.get(decision.decision_id)
+        if held is None:
+            seg = np.hypot(*np.diff(path, axis=0).T)
+            at = int(np.searchsorted(np.cumsum(seg), _LANE_CHANGE_AHEAD_M))
+            at = min(at, len(path) - 2)
+            d = path[at + 1] - path[at]
+            tgt = lane_at(obs.map, x_m=float(path[at + 1, 0]), y_m=float(path[at + 1, 1]),
+                          yaw_rad=math.atan2(d[1], d[0]), lane_id=None)
+            if tgt is None or tgt.internal or tgt.id == own.id or tgt.edge_id != own.edge_id \
+                    or abs(tgt.index - own.index) != 1:
+                return None  # no lane change on this edge
+            hx, hy = math.cos(ego.yaw_rad), math.sin(ego.yaw_rad)
+            blockers = []
+            for ag in obs.agents.agents:
+                if ag.lane_id != tgt.id:
+                    continue
+                dx = (ag.x_m - ego.x_m) * hx + (ag.y_m - ego.y_m) * hy
+                need = 0.5 * (veh.length_m + ag.length_m) + cfg.safety_gap_m
+                if not lane_change_gap(dx, v_ego_mps=ego.v_mps, v_agent_mps=ag.v_mps,
+                                       need_m=need):
+                    blockers.append(ag.id)
+            if not blockers:
+                return None
+            held = self._lane_change_refused[decision.decision_id] = tuple(blockers)
+            if len(self._lane_change_refused) > _STALE_LOG_DECISIONS:
+                del self._lane_change_refused[next(iter(self._lane_change_refused))]
+        cands = candidates_for_pose(obs.map, x_m=ego.x_m, y_m=ego.y_m, yaw_rad=ego.yaw_rad,
+                                    lane_id=own.id, lookahead_m=cfg.lookahead_m)
+        keep = [c for c in cands if c.lane_ids and c.lane_ids[0] == own.id]
+        cand = keep[0] if keep else closest_heading(cands, ego.yaw_rad)
+        return cand.sample(200), held

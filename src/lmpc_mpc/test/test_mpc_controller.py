@@ -598,3 +598,60 @@ def test_a_follower_closing_in_is_no_crossing_zone(solver: MpcSolver) -> None:
     ctrl, accel = _first_step(solver, [car, follower], ego_y_m=-28.0, v_mps=12.0)
     assert "follower" in ctrl.agent_predictions  # attended: the MPC keeps clear of it
     assert "on" in ctrl._yielded and not ctrl._committed
+
+
+def test_a_lane_change_into_a_closed_gap_is_refused(solver: MpcSolver) -> None:
+    """Issue 23, lane changes executed late. The planner looked at t = 0 (the left lane
+    free) and chose the lane change to E0_1; with a 2.5 s latency it takes effect at
+    2.5 s. Meanwhile a faster car has come up in the left lane and is beside the ego.
+    The stale check refuses the lane change (``Control.stale`` says ``lane_change`` and
+    names the car) and the ego keeps its lane, for the rest of the decision; its speed
+    guidance still applies. Check off: the ego moves into the left lane, into the car."""
+    m = S.straight_road()
+    start = (40.0, -4.8, 0.0, 10.0)
+    cps = ((40.0, -4.8), (55.0, -4.8), (65.0, -1.6), (100.0, -1.6))
+    change = _decision(start[:2], stamp_s=0.0, latency_s=2.5, ttl_s=30.0,
+                       accel_idx=CFG.decision_space.neutral_accel_index)
+    change = change.model_copy(update={"ego_trajectory": BezierTrajectory(
+        candidate_id=1, control_points=cps)})
+
+    def left_lane(t: float) -> list[Agent]:
+        # 14 m/s in the left lane, 10 m behind the ego at t = 0: beside it at 2.5 s
+        return [S.agent("fast", x_m=30.0 + 14.0 * t, y_m=-1.6, yaw_rad=0.0, v_mps=14.0,
+                        lane_id="E0_1")]
+
+    def drive(check: bool) -> tuple[list, MpcController]:
+        cfg = CFG.model_copy(update={"stale_decision_check": check})
+        solver.reset()
+        ctrl = MpcController(cfg, solver=solver)
+        ctrl.on_decision(change)
+        return _run(ctrl, m, start, 60, left_lane), ctrl
+
+    log, ctrl = drive(True)
+    refused = [(t, c) for t, _, c in log if "lane_change" in c.stale]
+    assert refused and 2.5 - 1e-9 <= min(t for t, _ in refused) < 2.7
+    assert all("fast" in c.stale for _, c in refused)
+    assert all(t >= 2.5 - 1e-9 for t, _ in refused)
+    assert len(refused) == sum(1 for t, _, _ in log if t >= 2.5 - 1e-9)  # held
+    assert ctrl.stale_log[change.decision_id].agents == ["fast"]
+    assert all(abs(x[1] + 4.8) < 0.3 for _, x, _ in log)  # it kept its lane
+    blind, _ = drive(False)
+    # toward the car (the MPC's safety term alone stops it ~1 m short of the lane line)
+    assert max(x[1] for _, x, _ in blind) > -4.0
+
+
+def test_a_lane_change_with_the_gap_open_goes_ahead(solver: MpcSolver) -> None:
+    """The same late lane change with the left-lane car 60 m behind at 12 m/s: the gap
+    stays open, nothing is refused, the ego changes lanes."""
+    cps = ((40.0, -4.8), (55.0, -4.8), (65.0, -1.6), (100.0, -1.6))
+    change = _decision((40.0, -4.8), stamp_s=0.0, latency_s=2.5, ttl_s=30.0,
+                       accel_idx=CFG.decision_space.neutral_accel_index)
+    change = change.model_copy(update={"ego_trajectory": BezierTrajectory(
+        candidate_id=1, control_points=cps)})
+    ctrl = _ctrl(solver)
+    ctrl.on_decision(change)
+    log = _run(ctrl, S.straight_road(), (40.0, -4.8, 0.0, 10.0), 60, lambda t: [
+        S.agent("far", x_m=-20.0 + 12.0 * t, y_m=-1.6, yaw_rad=0.0, v_mps=12.0,
+                lane_id="E0_1")])
+    assert not any("lane_change" in c.stale for _, _, c in log)
+    assert log[-1][1][1] > -2.2  # in the left lane
