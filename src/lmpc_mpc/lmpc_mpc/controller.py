@@ -114,6 +114,10 @@ class ControllerSnapshot:
     solver: tuple
 
 
+_REENTRY_AHEAD_M = 12.0
+_REENTRY_RAD = math.radians(30.0)
+"""The path point this far ahead lies more than this off the ego's heading: the decision's
+steer bias is replaced by the path's own (``MpcController._problem``)."""
 _LEAD_IN_OFF_RAD = math.radians(60.0)
 _LEAD_IN_M = 6.0
 _LEAD_IN_RADIUS_M = 6.0
@@ -529,6 +533,18 @@ class MpcController(CrossingRules):
                               a_max_mps2=ref_acc, a_dec_mps2=ref_dec,
                               a_lat_max_mps2=cfg.reference_lat_accel_mps2, horizon=n,
                               dt_s=cfg.dt_s, stop_at_m=stop_at, s_limit_m=s_limit)
+        if decision is not None:
+            # the ego stands / drives turned far off its path (after a dodge in a
+            # junction): the decision's steer guidance was for another pose, and the
+            # action term held the steer at it (0.19 rad for a "slight left" where the way
+            # back needed ~0.5): the ego came back onto the route in a wide arc, off the
+            # road (usi 119 / 106 at 2.5 s, dev). It steers as the path needs instead
+            ahead = line.at(min(_REENTRY_AHEAD_M, line.length_m))[0]
+            head = math.atan2(ahead[1] - ego.y_m, ahead[0] - ego.x_m)
+            if abs(math.remainder(head - ego.yaw_rad, 2.0 * math.pi)) > _REENTRY_RAD:
+                kappa = float(np.mean(ref.curvature_1pm[:10]))
+                bias = (bias[0], float(np.clip(math.atan(veh.wheelbase_m * kappa),
+                                               -veh.max_steer_rad, veh.max_steer_rad)))
         self.reference_path = ref.path
         self.reference_states = ref.states
         self.reference_id = ref_id
