@@ -655,3 +655,37 @@ def test_a_lane_change_with_the_gap_open_goes_ahead(solver: MpcSolver) -> None:
                 lane_id="E0_1")])
     assert not any("lane_change" in c.stale for _, _, c in log)
     assert log[-1][1][1] > -2.2  # in the left lane
+
+
+def test_turned_off_the_path_steers_as_the_path_needs_not_at_the_bias(
+        solver: MpcSolver) -> None:
+    """The ego stands in the junction turned 45 deg right of the left turn it must make
+    (after a dodge); the decision's steer guidance is "slight left" (0.19 rad, chosen for
+    a normal approach). The way onto the turn lies > 30 deg off its heading, so the
+    problem's steer bias is the path's own steer (curvature feedforward), not 0.19:
+    held at the bias by the action term, the ego came back onto the route in a wide
+    arc, off the road (usi 14 at a 2.5 s latency). On its lane, heading along it, the
+    bias is the decision's."""
+    from lmpc_mpc.reference import route_candidate
+
+    m = S.four_way_junction()
+    normal = S.ego_state(x_m=1.6, y_m=-12.0, yaw_rad=math.pi / 2)
+    cand = route_candidate(m, normal, lookahead_m=CFG.lookahead_m)
+    steer_idx = 3
+    assert CFG.decision_space.bias_for(2, steer_idx)[1] == pytest.approx(0.19)
+    dec = _decision((1.6, -12.0), stamp_s=0.0, ttl_s=30.0,
+                    accel_idx=CFG.decision_space.neutral_accel_index)
+    dec = dec.model_copy(update={
+        "steer_interval": steer_idx,
+        "ego_trajectory": BezierTrajectory(candidate_id=cand.candidate_id,
+                                           control_points=cand.control_points)})
+
+    def steer_bias(ego) -> float:
+        ctrl = _ctrl(solver)
+        ctrl.on_decision(dec)
+        problem, _, _ = ctrl._problem(S.observation(m, ego), dec)
+        return problem.bias[1]
+
+    assert steer_bias(normal) == pytest.approx(0.19)
+    turned = S.ego_state(x_m=2.5, y_m=-6.0, yaw_rad=math.pi / 2 - math.radians(45.0))
+    assert steer_bias(turned) > 0.25  # the arc onto the turn (~0.29 rad)
