@@ -73,12 +73,11 @@ def _bench(scene: Path, methods: str, out: Path) -> list[dict[str, str]]:
     return list(csv.DictReader((out / "results.csv").open()))
 
 
-_RULES_BUSY_OPEN = {("inner", False, True)}
-"""Since the MPC's commit / yield rule of issue 23 (2026-12-03), lmpc-rules collides on the
-busy inner net (seed 1, 12.8 s): the ego stops part-way through its lane change, inside
-the path of a car coming from behind, and the decision in force ("wait for a gap", a
-braking bias) holds it there. Open: the MPC should not hold the ego inside the path of an
-arriving vehicle (docs/lmpc_mpc.md, "stale decisions, second round")."""
+_RULES_BUSY_OPEN: set[tuple[str, bool, bool]] = set()
+"""Empty since the third round of issue 23 (2026-12-03, docs/lmpc_mpc.md): lmpc-rules had
+collided on the busy inner net (seed 1, 12.8 s, the ego stopped part-way through its lane
+change inside the path of a car coming from behind); it reaches now (the strict xfail
+passed)."""
 
 
 @pytest.mark.parametrize("case", [

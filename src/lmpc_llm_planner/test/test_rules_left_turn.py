@@ -136,3 +136,26 @@ def test_travel_time_accelerates_up_to_the_cap():
     assert travel_time_s(45.0, v0_mps=0.0, accel_mps2=2.0, vmax_mps=10.0) == pytest.approx(7.0)
     assert travel_time_s(30.0, v0_mps=15.0, accel_mps2=2.0, vmax_mps=10.0) == pytest.approx(2.0)
     assert travel_time_s(0.0, v0_mps=0.0, accel_mps2=2.0, vmax_mps=10.0) == 0.0
+
+
+def test_a_car_standing_short_of_the_crossing_waits_for_an_ego_in_the_junction(
+        left_turn_map, obs_factory, oncoming_factory, planner_config, mpc_config):
+    """Both stand: the ego inside the junction (past the stop line, before the oncoming
+    lane), an oncoming car 1 m short of the crossing. The car waits for the ego (traffic
+    in the junction goes first), so it is no conflict and the ego turns. Taken as
+    arriving "in 0 s", the two waited for each other until the timeout (si 110). From
+    behind the stop line the ego still waits for such a car."""
+    car = oncoming_factory("car1", y_m=3.4, v_mps=0.0)
+    inside = _inputs(obs_factory(left_turn_map, ego_y_m=-5.0, ego_v_mps=0.0, agents=[car],
+                                 lane_id=":J_1_0"), planner_config, mpc_config)
+    assert next_maneuver(inside.scene.obs, inside.scene.lanes,
+                         max_distance_m=inside.cfg.junction_attention_m).inside_junction
+    assert _conflict(inside, "car1") is None
+    plan = fresh_plan(inside)
+    assert left_turn_rule(inside, plan) == "go"
+    assert accel_of(inside, plan) > 0.0
+    behind = _inputs(obs_factory(left_turn_map, ego_y_m=-12.0, ego_v_mps=0.0, agents=[car]),
+                     planner_config, mpc_config)
+    c = _conflict(behind, "car1")
+    assert c is not None and c.t_agent_s == 0.0
+    assert left_turn_rule(behind, fresh_plan(behind)) == "yield"

@@ -20,7 +20,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, replace
-from typing import Mapping, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -31,7 +31,7 @@ from lmpc_msgs_py.vocabulary import space_mismatch
 from lmpc_mpc.closeness import closeness, must_attend
 from lmpc_mpc.config import MpcConfig
 from lmpc_mpc.mirrors import OWN_SUFFIX
-from lmpc_mpc.prediction import baseline_candidate, forecast
+from lmpc_mpc.prediction import baseline_candidate
 from lmpc_mpc.reference import (
     ReferencePathError,
     _Polyline,
@@ -46,17 +46,18 @@ from lmpc_mpc.reference import (
 )
 from lmpc_mpc.route_guard import RouteLeave, leaves_route
 from lmpc_mpc.solver import MpcProblem, MpcSolver, Obstacle
-from lmpc_mpc.stale import StaleRecord, StaleVerdict, on_path, reach_m
+from lmpc_mpc.crossing import (
+    _COMFORT_DECEL_MPS2,
+    _HEDGE_APART_M,
+    CrossingRules,
+)
+from lmpc_mpc.stale import StaleRecord, StaleVerdict
 
 _STOP_STATES = ("r", "y", "u")
 _TIME_EPS_S = 1e-6
 _STOP_MARGIN_M = 1.0
 """The box front stops this far before a red light's stop line."""
-_COMFORT_DECEL_MPS2 = 3.0
-"""A yellow light is run through when stopping would need more than this."""
 _DECISION_MEMORY = 8
-_STALE_LOG_DECISIONS = 256
-"""The stale check's record is kept for this many decisions (the newest)."""
 _Points = tuple[tuple[float, float], ...]
 _CANDIDATE_REUSE_S = 0.5
 """An agent's closest-heading candidate is rebuilt at most this often (sim time) while
@@ -70,18 +71,6 @@ _ON_ROUTE_M = 2.0
 _ON_ROUTE_RAD = math.radians(45.0)
 """A decision curve ending this close to the route, heading along it, is continued along
 the route (``MpcController._decision_curve``)."""
-_BESIDE_STANDING_MPS = 0.5
-"""An attended agent slower than this whose forecast stays laterally clear of the path
-is flagged ``Obstacle.beside`` (no headway in its safety zone)."""
-_HEDGE_APART_M = 0.5
-"""A close agent's own forecast is added beside the decision's prediction of it when the
-two are farther apart than this at some step (see ``MpcController._problem``)."""
-_HARD_DECEL_FRACTION = 0.8
-"""A crossing the ego cannot clear before the agent arrives is yielded to while a stop
-at this fraction of the maximum deceleration still ends before it (else: commit)."""
-_COMMIT_HOLD_S = 6.0
-"""Once the ego commits to pass ahead of a crossing agent, it keeps that commitment this
-long (sim time) while the agent stays a conflict, so it does not stop half-way."""
 
 
 @dataclass(frozen=True)
@@ -125,19 +114,13 @@ class ControllerSnapshot:
     solver: tuple
 
 
+_REENTRY_AHEAD_M = 12.0
+_REENTRY_RAD = math.radians(30.0)
+"""The path point this far ahead lies more than this off the ego's heading: the decision's
+steer bias is replaced by the path's own (``MpcController._problem``)."""
 _LEAD_IN_OFF_RAD = math.radians(60.0)
 _LEAD_IN_M = 6.0
 _LEAD_IN_RADIUS_M = 6.0
-
-
-def _time_to_m(dist_m: float, v_mps: float, accel_mps2: float) -> float:
-    """Time to cover ``dist_m`` from ``v_mps`` accelerating at ``accel_mps2``."""
-    v = max(0.0, v_mps)
-    if dist_m <= 0.0:
-        return 0.0
-    if accel_mps2 <= 1e-9:
-        return dist_m / v if v > 1e-9 else math.inf
-    return (-v + math.sqrt(v * v + 2.0 * accel_mps2 * dist_m)) / accel_mps2
 
 
 def stop_distance_m(obs: Observation, *, length_m: float) -> Optional[float]:
@@ -203,7 +186,7 @@ def _lead_in(path: np.ndarray, x_m: float, y_m: float, yaw_rad: float) -> np.nda
     return np.vstack([arc, path[k + 1:]]) if k + 1 < len(path) else arc
 
 
-class MpcController:
+class MpcController(CrossingRules):
     """LanguageMPC's low-level controller: one ``Control`` per observation."""
 
     def __init__(self, config: MpcConfig, vehicle: VehicleParams = DEFAULT_VEHICLE, *,
@@ -247,6 +230,12 @@ class MpcController:
         """Agent id -> (sim time built, lane id then, control points) of the baseline
         prediction curve (see ``_CANDIDATE_REUSE_S``)."""
         self._rebuilds_left = _REBUILDS_PER_STEP
+        self._lane_change_refused: dict[str, tuple[str, ...]] = {}
+        """Decision id -> agents its lane change was refused for (``_lane_change_kept``)."""
+        self._zone_tail: dict[str, np.ndarray] = {}
+        self._timing: tuple = (np.zeros((2, 2)), 0.0, None)
+        """(this step's path, its speed cap, the timing profile ``_time_along`` built)."""
+        """Obstacle id -> its forecast beyond the horizon (``_zone_forecast``), this step."""
         self._route_s: Optional[tuple[int, float, float]] = None
         """(id of the map, sim time, arc length) of the ego's last route progress: the
         baseline reference starts there or later (monotone, see ``route_progress``)."""
@@ -324,6 +313,7 @@ class MpcController:
         self._plan = self._plan_pred = None
         self._plan_age = 0
         self._committed.clear()
+        self._lane_change_refused.clear()
         self._floor_until.clear()
         self._hedge_until.clear()
         self._curve = None
@@ -421,6 +411,7 @@ class MpcController:
         # a candidate that leaves the route where the route goes on is not followed: the
         # route reference instead, with the decision's weights and speed guidance
         leave = self._route_leave(obs, decision) if decision is not None else None
+        lane_change_refused: tuple[str, ...] = ()
         if decision is not None and leave is None:
             pts = self._decision_curve(obs, decision)
             # the curve starts where the ego was when the planner looked: go on from
@@ -429,6 +420,12 @@ class MpcController:
             path = np.vstack([ego_xy, pts[i + 1:]]) if i + 1 < len(pts) else \
                 np.vstack([ego_xy, ego_xy + [math.cos(ego.yaw_rad), math.sin(ego.yaw_rad)]])
             ref_id = decision.ego_trajectory.candidate_id
+            kept = self._lane_change_kept(obs, decision, path) \
+                if cfg.stale_decision_check else None
+            if kept is not None:
+                # its target lane's gap closed: the own lane instead (crossing.py)
+                path, lane_change_refused = kept
+                ref_id = None
         else:
             cand = route_candidate(obs.map, ego, lookahead_m=cfg.lookahead_m,
                                    progress_m=self._progress(obs))
@@ -437,7 +434,7 @@ class MpcController:
         if decision is not None:
             weights = cfg.decision_space.weights_for(decision.weights)
             bias = self._decision_bias(decision)
-            if leave is not None:
+            if leave is not None or lane_change_refused:
                 bias = (bias[0], 0.0)  # its steer bias belongs to the manoeuvre not taken
             # the action guidance shapes the reference's speed profile too: a braking
             # bias (below the neutral interval) brakes the reference to a stop at that
@@ -464,6 +461,7 @@ class MpcController:
         preds = {p.agent_id: p.trajectory.control_points
                  for p in (decision.agent_predictions if decision is not None else ())}
         self._rebuilds_left = _REBUILDS_PER_STEP
+        self._zone_tail = {}
         t = ego.stamp_s
         # close agents with a prediction get the MPC's own forecast too (or still do)
         hedged = {a.id for a in agents[:slots] if a.id in preds and (
@@ -478,17 +476,15 @@ class MpcController:
             own = self._agent_curves[ag.id][2] if ag.v_mps >= 0.05 and (
                 ag.id not in preds or ag.id in hedged) else None
             cps = preds.get(ag.id, own)
-            fc = forecast(ag, cps, map_=obs.map, horizon=n, dt_s=cfg.dt_s,
-                          lookahead_m=cfg.lookahead_m)
-            obstacles.append(Obstacle(ag.id, fc.xy_m, ag.length_m, ag.width_m))
+            fc = self._zone_forecast(ag.id, ag, cps, obs)
+            obstacles.append(Obstacle(ag.id, fc, ag.length_m, ag.width_m))
             speeds.append(ag.v_mps)
             if ag.id in hedged:
                 # a close agent is also kept clear of along the MPC's own forecast: the
                 # decision's prediction of it is one hypothesis, not a licence (a weak
                 # model's "the stopped car ahead changes lanes" let the ego drive into it)
-                mine = forecast(ag, own, map_=obs.map, horizon=n, dt_s=cfg.dt_s,
-                                lookahead_m=cfg.lookahead_m).xy_m
-                if float(np.max(np.hypot(*(mine - fc.xy_m).T))) > _HEDGE_APART_M:
+                mine = self._zone_forecast(ag.id + OWN_SUFFIX, ag, own, obs)
+                if float(np.max(np.hypot(*(mine - fc).T))) > _HEDGE_APART_M:
                     # held like the floor: an obstacle flickering in and out of the
                     # problem from step to step made the plan jump (a spider-net junction)
                     self._hedge_until[ag.id] = t + cfg.safety_floor_hold_s
@@ -513,6 +509,7 @@ class MpcController:
         if check:
             reattended = self._reattend_stale(obs, coarse, agents[:slots], preds, obstacles,
                                               speeds)
+        self._timing = (path, v_limit, None)  # physical: not a decision's braking cap
         s_limit = self._lead_limits(coarse, obstacles, speeds)
         if self._beside:
             obstacles = [replace(ob, beside=True) if i in self._beside else ob
@@ -530,11 +527,24 @@ class MpcController:
             refused = tuple(dict.fromkeys(list(self._yielded) + list(held)))
             bias = (0.0, bias[1])
             ref_acc = cfg.reference_accel_mps2
-        self._note_stale(decision, StaleVerdict(reattended=reattended, go_refused_for=refused))
+        self._note_stale(decision, StaleVerdict(reattended=reattended, go_refused_for=refused,
+                                                lane_change_refused_for=lane_change_refused))
         ref = timed_reference(path, v0_mps=ego.v_mps, v_max_mps=min(v_limit, ref_v_cap),
                               a_max_mps2=ref_acc, a_dec_mps2=ref_dec,
                               a_lat_max_mps2=cfg.reference_lat_accel_mps2, horizon=n,
                               dt_s=cfg.dt_s, stop_at_m=stop_at, s_limit_m=s_limit)
+        if decision is not None:
+            # the ego stands / drives turned far off its path (after a dodge in a
+            # junction): the decision's steer guidance was for another pose, and the
+            # action term held the steer at it (0.19 rad for a "slight left" where the way
+            # back needed ~0.5): the ego came back onto the route in a wide arc, off the
+            # road (usi 119 / 106 at 2.5 s, dev). It steers as the path needs instead
+            ahead = line.at(min(_REENTRY_AHEAD_M, line.length_m))[0]
+            head = math.atan2(ahead[1] - ego.y_m, ahead[0] - ego.x_m)
+            if abs(math.remainder(head - ego.yaw_rad, 2.0 * math.pi)) > _REENTRY_RAD:
+                kappa = float(np.mean(ref.curvature_1pm[:10]))
+                bias = (bias[0], float(np.clip(math.atan(veh.wheelbase_m * kappa),
+                                               -veh.max_steer_rad, veh.max_steer_rad)))
         self.reference_path = ref.path
         self.reference_states = ref.states
         self.reference_id = ref_id
@@ -596,90 +606,6 @@ class MpcController:
         self._agent_curves[ag.id] = (t, ag.lane_id, cps)
         return cps
 
-    def _lead_limits(self, line: _Polyline, obstacles: list[Obstacle],
-                     speeds_mps: list[float]) -> Optional[np.ndarray]:
-        """Per step, the farthest the reference may go: behind every attended agent
-        predicted on the path (gap + half-lengths + headway at the agent's speed).
-
-        This keeps the time-parameterised reference from running through a car
-        ahead, so tracking and the safety term do not fight (our choice; the
-        paper leaves the reference's speed profile open)."""
-        self._leaders = []
-        self._beside = set()
-        if not obstacles:
-            return None
-        cfg, veh = self.config, self.vehicle
-        n = cfg.horizon
-        limit = np.full(n + 1, np.inf)
-        hold_steps = int(math.ceil(cfg.safety_headway_s / cfg.dt_s))
-        # one vectorised projection of every predicted position onto the path
-        s_all, d_all = line.project_many(np.concatenate([ob.xy_m for ob in obstacles]))
-        s_all = s_all.reshape(len(obstacles), n + 1)
-        d_all = d_all.reshape(len(obstacles), n + 1)
-        crossing: list[tuple[str, float, float, int, int]] = []
-        for i, (ob, v) in enumerate(zip(obstacles, speeds_mps)):
-            lat_clear = 0.5 * (veh.width_m + ob.width_m) + cfg.safety_lateral_gap_m
-            gap = cfg.safety_gap_m + 0.5 * (veh.length_m + ob.length_m)
-            s_k = s_all[i]
-            on = (d_all[i] < lat_clear) & (s_k > 0.0) & (s_k < line.length_m - 1e-6)
-            if v < _BESIDE_STANDING_MPS and not np.any(d_all[i] < lat_clear):
-                self._beside.add(i)  # standing beside the path: no headway (``Obstacle.beside``)
-            if not np.any(on):
-                continue
-            if on[0] and np.all(np.diff(s_k[on]) >= -1e-6):
-                # a vehicle ahead going our way: follow it at gap + headway
-                limit[on] = np.minimum(limit[on], s_k[on] - gap - cfg.safety_headway_s * v)
-                self._leaders.append((ob.obstacle_id.removesuffix(OWN_SUFFIX),
-                                      float(np.min(limit[on]))))
-                continue
-            # crossing or oncoming: its zone on our path and the last step it is there
-            k_last = min(n, int(np.max(np.nonzero(on)[0])) + hold_steps)
-            crossing.append((ob.obstacle_id, float(np.min(s_k[on])) - gap,
-                             float(np.max(s_k[on])) + gap, int(np.argmax(on)), k_last))
-        v0 = self._ego_v_mps
-        comfort_m = v0 ** 2 / (2.0 * _COMFORT_DECEL_MPS2)
-        hard_m = v0 ** 2 / (2.0 * _HARD_DECEL_FRACTION * veh.max_decel_mps2)
-        self._yielded = []
-        for oid, s_enter, s_exit, k_first, k_last in crossing:
-            # never plan to stop inside another crossing agent's zone (blocking the
-            # junction): stop before that zone instead (our rule, see docs)
-            moved = True
-            while moved:
-                moved = False
-                for other, lo, hi, _, _ in crossing:
-                    if other != oid and lo < s_enter < hi:
-                        s_enter, moved = lo, True
-            clears = s_enter < hard_m or \
-                _time_to_m(s_exit, v0, cfg.reference_accel_mps2) <= k_first * cfg.dt_s
-            since = self._committed.get(oid)
-            if since is not None and 0.0 <= self._now_s - since <= _COMMIT_HOLD_S and clears:
-                # committed earlier: as the ego slows, the comfortable stopping distance
-                # shrinks below s_enter; yielding then would stop it half-way, so hold on
-                # (unless the ego would now still be in the zone when the agent gets
-                # there and can stop before it: si 13 at 2.5 s, a bike)
-                continue
-            if s_enter < comfort_m and clears:
-                # too close to stop comfortably, and either it clears the zone before the
-                # agent arrives or it could not stop before the zone even braking hard:
-                # commit (pass ahead of it). Otherwise (it would still be in the zone when
-                # the agent gets there, and a hard stop still ends before it) yield,
-                # braking hard: a bike reaching the crossing the ego was committed to
-                # because it was a little too close to stop comfortably hit it (si 13 at
-                # a 2.5 s decision latency)
-                self._committed[oid] = self._now_s
-                continue
-            # stay out of the conflict zone until it has left (plus one headway)
-            limit[: k_last + 1] = np.minimum(limit[: k_last + 1], s_enter)
-            self._yielded.append(oid.removesuffix(OWN_SUFFIX))
-        return None if not np.any(np.isfinite(limit)) else limit
-
-    def _held_by(self, v_mps: float, accel_mps2: float) -> tuple[str, ...]:
-        """Leaders (``_lead_limits``) that hold the reference back within the horizon: their
-        limit is short of where the ego would get accelerating at ``accel_mps2``."""
-        horizon_s = self.config.horizon * self.config.dt_s
-        free = reach_m(v_mps, accel_mps2=accel_mps2, horizon_s=horizon_s)
-        return tuple(oid for oid, lim in self._leaders if lim < free)
-
     def _decision_bias(self, decision: Decision) -> tuple[float, float]:
         """``A_hat``: the midpoints of the decision's intervals (this MPC's decision space,
         the one place indices become numbers), clipped to the vehicle's limits."""
@@ -694,63 +620,6 @@ class MpcController:
         checked once per decision, on the curve ``_decision_curve`` builds from it."""
         self._decision_curve(obs, decision)
         return None if self._curve is None else self._curve[2]
-
-    def _reattend_stale(self, obs: Observation, line: _Polyline, in_problem: Sequence[Agent],
-                        preds: Mapping[str, object], obstacles: list[Obstacle],
-                        speeds: list[float]) -> tuple[str, ...]:
-        """The stale-decision check's attention part (``lmpc_mpc.stale``): every agent in
-        sensing range whose own forecast enters the ego's path corridor within reach in
-        the horizon, and that the problem does not yet avoid along that forecast (the
-        decision dropped it, or its prediction of it is more than ``_HEDGE_APART_M``
-        away), is added with the own forecast (``<id>#own`` beside a prediction).
-        Appends to ``obstacles`` / ``speeds``; returns the ids added."""
-        cfg, veh, ego = self.config, self.vehicle, obs.ego
-        n = cfg.horizon
-        horizon_s = n * cfg.dt_s
-        reach = reach_m(ego.v_mps, accel_mps2=veh.max_accel_mps2, horizon_s=horizon_s)
-        reach += veh.length_m + cfg.safety_gap_m
-        placed = {ob.obstacle_id: ob for ob in obstacles}
-        added: list[str] = []
-        in_ids = {a.id for a in in_problem}
-        for ag in obs.agents.agents:
-            dist = math.hypot(ag.x_m - ego.x_m, ag.y_m - ego.y_m)
-            if dist > cfg.sensing_range_m or dist > reach + ag.v_mps * horizon_s + 10.0:
-                continue  # cannot meet the ego's path within the horizon
-            if ag.id in in_ids and (ag.id not in preds or ag.id + OWN_SUFFIX in placed):
-                continue  # already avoided along the MPC's own forecast
-            own = self._baseline_curve(obs, ag) if ag.v_mps >= 0.05 else None
-            mine = forecast(ag, own, map_=obs.map, horizon=n, dt_s=cfg.dt_s,
-                            lookahead_m=cfg.lookahead_m).xy_m
-            s_k, d_k = line.project_many(mine)
-            lat = 0.5 * (veh.width_m + ag.width_m) + cfg.safety_lateral_gap_m
-            if not on_path(s_k, d_k, lateral_clear_m=lat, reach_m=reach,
-                           path_length_m=line.length_m):
-                continue
-            theirs = placed.get(ag.id)
-            if theirs is not None and float(np.max(np.hypot(*(mine - theirs.xy_m).T))) \
-                    <= _HEDGE_APART_M:
-                continue  # the decision's prediction agrees with the own forecast
-            name = ag.id + OWN_SUFFIX if theirs is not None else ag.id
-            obstacles.append(Obstacle(name, mine, ag.length_m, ag.width_m))
-            speeds.append(ag.v_mps)
-            added.append(ag.id)
-        return tuple(added)
-
-    def _note_stale(self, decision: Optional[Decision], verdict: StaleVerdict) -> None:
-        """Count the stale check's verdict and keep it per decision for the log."""
-        self.stale = verdict
-        if decision is None or not verdict.fired:
-            return
-        self._counts["stale_steps"] += 1
-        self._counts["stale_agent_steps"] += len(verdict.reattended)
-        self._counts["go_refused"] += int(bool(verdict.go_refused_for))
-        rec = self.stale_log.get(decision.decision_id)
-        if rec is None:
-            rec = self.stale_log[decision.decision_id] = StaleRecord(
-                decision_id=decision.decision_id, first_s=self._now_s)
-        rec.add(self._now_s, verdict)
-        if len(self.stale_log) > _STALE_LOG_DECISIONS:
-            del self.stale_log[next(iter(self.stale_log))]
 
     def _decision_curve(self, obs: Observation, decision: Decision) -> np.ndarray:
         """The decision's reference curve, sampled, and continued past its end so that

@@ -12,6 +12,10 @@ controller (``MpcController._stale_check``) applies the verdicts:
   ("near the ego's path or a conflict zone") and that the problem does not yet avoid
   along that forecast (the decision dropped it, or predicts it elsewhere) is added
   with the own forecast (re-attended);
+- a lane change (the decision's curve leads into a neighbour lane of the ego's edge) is
+  refused while an agent in that lane is beside the ego or would close the gap within
+  ``LANE_CHANGE_S`` (``lane_change_gap``): the ego keeps its own lane for the rest of
+  that decision (issue 23: lane changes executed late into a closed gap);
 - a "go" (an acceleration bias above the neutral interval) is refused, i.e. the bias
   and the raised reference acceleration fall back to neutral, while the MPC's own
   crossing rule (``MpcController._lead_limits``, on its own forecasts) yields to some
@@ -46,16 +50,36 @@ class StaleVerdict:
     """Agents added with the MPC's own forecast (dropped or mispredicted by the decision)."""
     go_refused_for: tuple[str, ...] = ()
     """Agents the MPC's own crossing rule yields to while the decision says go."""
+    lane_change_refused_for: tuple[str, ...] = ()
+    """Agents in the target lane that closed the gap a decision's lane change relied on
+    (``lane_change_gap``): the ego keeps its own lane."""
 
     @property
     def fired(self) -> bool:
-        return bool(self.reattended or self.go_refused_for)
+        return bool(self.reattended or self.go_refused_for or self.lane_change_refused_for)
 
     def labels(self) -> tuple[str, ...]:
         """For ``Control.stale``: the agents fallen back for, then ``go`` if the
-        decision's go bias was refused."""
-        out = list(dict.fromkeys(self.reattended + self.go_refused_for))
-        return tuple(out + (["go"] if self.go_refused_for else []))
+        decision's go bias was refused, ``lane_change`` if its lane change was."""
+        out = list(dict.fromkeys(self.reattended + self.go_refused_for
+                                 + self.lane_change_refused_for))
+        return tuple(out + (["go"] if self.go_refused_for else [])
+                     + (["lane_change"] if self.lane_change_refused_for else []))
+
+
+LANE_CHANGE_S = 3.0
+"""A lane change's gap must stay open this long (about its duration) at the current
+speeds: a rear agent in the target lane may close in at its speed difference, a front
+agent may fall back, by at most the room left beyond the safety gap."""
+
+
+def lane_change_gap(dx_m: float, *, v_ego_mps: float, v_agent_mps: float,
+                    need_m: float) -> bool:
+    """Whether an agent in the target lane ``dx_m`` ahead (< 0: behind) of the ego along
+    its heading leaves the gap open: box-to-box distance (centre distance minus
+    ``need_m``, the half lengths plus the safety gap) stays >= 0 for ``LANE_CHANGE_S``."""
+    closing = (v_agent_mps - v_ego_mps) if dx_m < 0.0 else (v_ego_mps - v_agent_mps)
+    return abs(dx_m) - need_m - max(0.0, closing) * LANE_CHANGE_S >= 0.0
 
 
 def reach_m(v0_mps: float, *, accel_mps2: float, horizon_s: float) -> float:
@@ -89,7 +113,7 @@ class StaleRecord:
         self.steps += 1
         self.go_refused_steps += int(bool(verdict.go_refused_for))
         self.agents.extend(a for a in verdict.labels()
-                           if a != "go" and a not in self.agents)
+                           if a not in ("go", "lane_change") and a not in self.agents)
 
     def as_dict(self) -> dict[str, Any]:
         return {"decision_id": self.decision_id, "first_s": round(self.first_s, 3),

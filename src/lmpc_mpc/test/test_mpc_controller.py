@@ -85,7 +85,10 @@ def test_oncoming_crossing_car_ego_waits(solver: MpcSolver) -> None:
         return [S.agent("on", x_m=-1.6, y_m=y, yaw_rad=-math.pi / 2, v_mps=10.0,
                         lane_id="N_in_0" if y > 8.0 else ":J_3_0")]
 
-    log = _run(_ctrl(solver), m, (1.6, -25.0, math.pi / 2, 3.0), 80, oncoming)
+    # 90 steps: since the stop counts from the physical zone (``_BRAKE_INTO_GAP``) the
+    # ego no longer commits while creeping at the zone's edge with the car still in the
+    # junction (it did at 4.0 s, car at y = 0); it goes ~0.8 s later
+    log = _run(_ctrl(solver), m, (1.6, -25.0, math.pi / 2, 3.0), 90, oncoming)
     gaps = [math.hypot(x[0] - a.x_m, x[1] - a.y_m)
             for (t, x, _) in log for a in oncoming(t + CFG.dt_s)]
     assert min(gaps) > 2.5  # boxes never touch (it passes in its own lane)
@@ -524,3 +527,165 @@ def _headway_problem(ob, ref):
                       reference=ref, reference_curvature_1pm=np.zeros(n + 1),
                       weights=CFG.decision_space.weights_for(None), bias=(0.0, 0.0),
                       obstacles=(ob,))
+
+
+def _oncoming_from(y0_m: float) -> Callable[[float], list[Agent]]:
+    """A car southbound at 10 m/s on the oncoming lane (x = -1.6) from y = ``y0_m``."""
+    def agents(t: float) -> list[Agent]:
+        y = y0_m - 10.0 * t
+        lane = "N_in_0" if y > 8.0 else (":J_3_0" if y > -8.0 else "S_out_0")
+        return [S.agent("on", x_m=-1.6, y_m=y, yaw_rad=-math.pi / 2, v_mps=10.0,
+                        lane_id=lane)]
+    return agents
+
+
+@pytest.mark.parametrize("y0_m", [45.0, 50.0])
+def test_left_turn_from_a_stop_waits_for_a_car_beyond_the_horizon(
+        solver: MpcSolver, y0_m: float) -> None:
+    """The ego stands at the stop line to turn left (~5 s to clear the oncoming lane from
+    rest); the oncoming car is 4.5-5 s away, beyond the 3 s horizon. The crossing rule
+    looks past the horizon (``_ZONE_TAIL_STEPS``): the ego waits, without hard braking,
+    and never stands in the oncoming lane while the car is near (si 24 at latency 0).
+    With the look past the horizon off (``_ZONE_TAIL_STEPS`` = 0), it starts, meets the
+    car's zone, brakes at -6 m/s^2 and commits in front of it; with the stop counted
+    from the zone's margin (``_BRAKE_INTO_GAP`` = 0), an ego held at the zone's edge
+    creeps a few cm in, is "unable to stop", commits in front of the car and brakes
+    (both cases fail either way)."""
+    agents = _oncoming_from(y0_m)
+    log = _run(_ctrl(solver), S.four_way_junction(), (1.6, -10.5, math.pi / 2, 0.0), 105,
+               agents)
+    assert min(c.accel_mps2 for _, _, c in log) > -3.0
+    for t, x, _ in log:
+        car_y = agents(t + CFG.dt_s)[0].y_m
+        if -8.0 <= car_y <= 12.0:  # the car near or in the junction
+            assert x[0] > 0.5, (t, x, car_y)  # the ego out of its lane
+    assert log[-1][1][0] < -3.0  # and then it turns left
+
+
+def _first_step(solver: MpcSolver, agents: Sequence[Agent], *, ego_y_m: float,
+                v_mps: float) -> tuple[MpcController, float]:
+    """One step of a fresh controller: the ego northbound on S_in_0 (left turn ahead)."""
+    ctrl = _ctrl(solver)
+    ego = S.ego_state(x_m=1.6, y_m=ego_y_m, yaw_rad=math.pi / 2, v_mps=v_mps, stamp_s=0.0,
+                      seq=0)
+    ctl = ctrl.compute(S.observation(S.four_way_junction(), ego, agents))
+    return ctrl, ctl.accel_mps2
+
+
+def test_time_to_clear_a_turn_counts_the_slowing_for_the_curve(solver: MpcSolver) -> None:
+    """12 m/s, 20 m before the stop line of a left turn; an oncoming car at 10 m/s meets
+    the turn in ~3 s. At the approach speed the ego would clear its zone in ~2.2 s and
+    would commit; slowing for the curve (the reference's lateral-acceleration cap) it
+    needs ~4 s, so it yields (usi 117 at a 2.5 s latency, dev seeds: it turned in front
+    of the car)."""
+    car = S.agent("on", x_m=-1.6, y_m=30.0, yaw_rad=-math.pi / 2, v_mps=10.0,
+                  lane_id="N_in_0")
+    ctrl, accel = _first_step(solver, [car], ego_y_m=-28.0, v_mps=12.0)
+    assert ctrl._time_along(30.0) > 3.0  # at 12 m/s and more, 30 m would take < 2.5 s
+    assert "on" in ctrl._yielded and "on" not in ctrl._committed
+    assert accel < 0.0
+
+
+def test_a_follower_closing_in_is_no_crossing_zone(solver: MpcSolver) -> None:
+    """The same yield with a faster car close behind the ego in its lane: the follower
+    enters the ego's path from behind; taken as a crossing agent, its zone (starting
+    behind the ego) moved every other zone's start behind the ego, and the ego
+    committed in front of the oncoming car."""
+    car = S.agent("on", x_m=-1.6, y_m=30.0, yaw_rad=-math.pi / 2, v_mps=10.0,
+                  lane_id="N_in_0")
+    follower = S.agent("follower", x_m=1.6, y_m=-38.0, yaw_rad=math.pi / 2, v_mps=15.0,
+                       lane_id="S_in_0")
+    ctrl, accel = _first_step(solver, [car, follower], ego_y_m=-28.0, v_mps=12.0)
+    assert "follower" in ctrl.agent_predictions  # attended: the MPC keeps clear of it
+    assert "on" in ctrl._yielded and not ctrl._committed
+
+
+def test_a_lane_change_into_a_closed_gap_is_refused(solver: MpcSolver) -> None:
+    """Issue 23, lane changes executed late. The planner looked at t = 0 (the left lane
+    free) and chose the lane change to E0_1; with a 2.5 s latency it takes effect at
+    2.5 s. Meanwhile a faster car has come up in the left lane and is beside the ego.
+    The stale check refuses the lane change (``Control.stale`` says ``lane_change`` and
+    names the car) and the ego keeps its lane, for the rest of the decision; its speed
+    guidance still applies. Check off: the ego moves into the left lane, into the car."""
+    m = S.straight_road()
+    start = (40.0, -4.8, 0.0, 10.0)
+    cps = ((40.0, -4.8), (55.0, -4.8), (65.0, -1.6), (100.0, -1.6))
+    change = _decision(start[:2], stamp_s=0.0, latency_s=2.5, ttl_s=30.0,
+                       accel_idx=CFG.decision_space.neutral_accel_index)
+    change = change.model_copy(update={"ego_trajectory": BezierTrajectory(
+        candidate_id=1, control_points=cps)})
+
+    def left_lane(t: float) -> list[Agent]:
+        # 14 m/s in the left lane, 10 m behind the ego at t = 0: beside it at 2.5 s
+        return [S.agent("fast", x_m=30.0 + 14.0 * t, y_m=-1.6, yaw_rad=0.0, v_mps=14.0,
+                        lane_id="E0_1")]
+
+    def drive(check: bool) -> tuple[list, MpcController]:
+        cfg = CFG.model_copy(update={"stale_decision_check": check})
+        solver.reset()
+        ctrl = MpcController(cfg, solver=solver)
+        ctrl.on_decision(change)
+        return _run(ctrl, m, start, 60, left_lane), ctrl
+
+    log, ctrl = drive(True)
+    refused = [(t, c) for t, _, c in log if "lane_change" in c.stale]
+    assert refused and 2.5 - 1e-9 <= min(t for t, _ in refused) < 2.7
+    assert all("fast" in c.stale for _, c in refused)
+    assert all(t >= 2.5 - 1e-9 for t, _ in refused)
+    assert len(refused) == sum(1 for t, _, _ in log if t >= 2.5 - 1e-9)  # held
+    assert ctrl.stale_log[change.decision_id].agents == ["fast"]
+    assert all(abs(x[1] + 4.8) < 0.3 for _, x, _ in log)  # it kept its lane
+    blind, _ = drive(False)
+    # toward the car (the MPC's safety term alone stops it ~1 m short of the lane line)
+    assert max(x[1] for _, x, _ in blind) > -4.0
+
+
+def test_a_lane_change_with_the_gap_open_goes_ahead(solver: MpcSolver) -> None:
+    """The same late lane change with the left-lane car 60 m behind at 12 m/s: the gap
+    stays open, nothing is refused, the ego changes lanes."""
+    cps = ((40.0, -4.8), (55.0, -4.8), (65.0, -1.6), (100.0, -1.6))
+    change = _decision((40.0, -4.8), stamp_s=0.0, latency_s=2.5, ttl_s=30.0,
+                       accel_idx=CFG.decision_space.neutral_accel_index)
+    change = change.model_copy(update={"ego_trajectory": BezierTrajectory(
+        candidate_id=1, control_points=cps)})
+    ctrl = _ctrl(solver)
+    ctrl.on_decision(change)
+    log = _run(ctrl, S.straight_road(), (40.0, -4.8, 0.0, 10.0), 60, lambda t: [
+        S.agent("far", x_m=-20.0 + 12.0 * t, y_m=-1.6, yaw_rad=0.0, v_mps=12.0,
+                lane_id="E0_1")])
+    assert not any("lane_change" in c.stale for _, _, c in log)
+    assert log[-1][1][1] > -2.2  # in the left lane
+
+
+def test_turned_off_the_path_steers_as_the_path_needs_not_at_the_bias(
+        solver: MpcSolver) -> None:
+    """The ego stands in the junction turned 45 deg right of the left turn it must make
+    (after a dodge); the decision's steer guidance is "slight left" (0.19 rad, chosen for
+    a normal approach). The way onto the turn lies > 30 deg off its heading, so the
+    problem's steer bias is the path's own steer (curvature feedforward), not 0.19:
+    held at the bias by the action term, the ego came back onto the route in a wide
+    arc, off the road (usi 14 at a 2.5 s latency). On its lane, heading along it, the
+    bias is the decision's."""
+    from lmpc_mpc.reference import route_candidate
+
+    m = S.four_way_junction()
+    normal = S.ego_state(x_m=1.6, y_m=-12.0, yaw_rad=math.pi / 2)
+    cand = route_candidate(m, normal, lookahead_m=CFG.lookahead_m)
+    steer_idx = 3
+    assert CFG.decision_space.bias_for(2, steer_idx)[1] == pytest.approx(0.19)
+    dec = _decision((1.6, -12.0), stamp_s=0.0, ttl_s=30.0,
+                    accel_idx=CFG.decision_space.neutral_accel_index)
+    dec = dec.model_copy(update={
+        "steer_interval": steer_idx,
+        "ego_trajectory": BezierTrajectory(candidate_id=cand.candidate_id,
+                                           control_points=cand.control_points)})
+
+    def steer_bias(ego) -> float:
+        ctrl = _ctrl(solver)
+        ctrl.on_decision(dec)
+        problem, _, _ = ctrl._problem(S.observation(m, ego), dec)
+        return problem.bias[1]
+
+    assert steer_bias(normal) == pytest.approx(0.19)
+    turned = S.ego_state(x_m=2.5, y_m=-6.0, yaw_rad=math.pi / 2 - math.radians(45.0))
+    assert steer_bias(turned) > 0.25  # the arc onto the turn (~0.29 rad)

@@ -182,14 +182,20 @@ def oncoming_conflict(inp: RuleInputs, view: AgentView, man: Maneuver,
     if cr.agent_along_m < -clear_len:
         return None  # already past the crossing
     d_agent_front = cr.agent_along_m - 0.5 * ag.length_m - CLEAR_MARGIN_M
+    ego = inp.scene.obs.ego
     if ag.v_mps < cfg.moving_speed_mps:
         if d_agent_front > 2.0:
             return None  # stopped short of the crossing: it is waiting
+        if man.inside_junction and ego.v_mps < cfg.moving_speed_mps and d_agent_front > 0.0:
+            # both standing, the ego inside the junction, the agent short of the crossing:
+            # it waits for the ego (traffic in the junction goes first). Taken as
+            # arriving "in 0 s", the ego waited for it and it for the ego until the
+            # timeout (si 110 at latency 0, a car stopped 1-2 m short of the crossing)
+            return None
         t_agent = 0.0
     else:
         t_agent = max(0.0, d_agent_front) / ag.v_mps
     # The ego clears the crossing once its rear is past the agent's path.
-    ego = inp.scene.obs.ego
     d_clear = man.dist_to_stop_line_m + cr.ego_s_m + 0.5 * ego.length_m \
         + 0.5 * ag.width_m + CLEAR_MARGIN_M
     d_line = max(0.0, man.dist_to_stop_line_m)
