@@ -12,6 +12,7 @@ decision log in ``decisions/<family>-<seed>-<method>.jsonl``.
     benchmark.py --scene examples/city.yaml --methods mpc,lmpc-rules   # your own network
     benchmark.py --scene examples/city.yaml --seeds 0-4   # five scenes: SUMO + traffic seeds
     benchmark.py --families lane --methods lmpc-rules --instruction "drive aggressively"
+    benchmark.py --families si,lane --seeds 100-124 --methods lmpc-rules --instruction-set styles
     benchmark.py --families eoa --methods lmpc-replay --replay-from runs/bench_local  # repeat
     benchmark.py --families si --methods lmpc-rules --decision-latency 2.5  # a slow LLM
 
@@ -19,6 +20,13 @@ decision log in ``decisions/<family>-<seed>-<method>.jsonl``.
 time) after the observation they used, whatever the backend (the rules reasoner too);
 emergency decisions get ``--emergency-latency`` (default min(S, 1.5 s), the paper's
 short emergency path). Both are recorded per row and in summary.json.
+
+``--instruction-set styles`` runs every scene once per phrasing of the set (conservative,
+normal = no instruction, aggressive; ``lmpc_bridge.evaluation.style.INSTRUCTION_SETS``) and
+writes ``styles.csv`` (a row per scene and phrasing, with the style figures: gaps, peak
+deceleration and jerk, accepted lane-change / junction gaps) and ``style_table.md`` (per
+family and style, and the per-scene share whose time follows the style) beside the
+normal outputs (results.csv / table.md of the uninstructed runs).
 
 ``lmpc-replay`` repeats a finished run's LLM decisions without the model: each scene
 answers from that run's decision log of the scene, matching prompts by hash, with the
@@ -41,6 +49,13 @@ from lmpc_bridge.evaluation.decisions import decision_stats, stats_md
 from lmpc_bridge.evaluation.replay import replay_check
 from lmpc_bridge.evaluation.rows import latency_cells, parse_seeds, read_rows, write_rows
 from lmpc_bridge.evaluation.scenes import RunSettings, run_scenes
+from lmpc_bridge.evaluation.style import (
+    INSTRUCTION_SETS,
+    STYLE_COLUMNS,
+    direction_share,
+    style_summary,
+    style_table_md,
+)
 from lmpc_bridge.evaluation.table import aggregate, table_md
 from lmpc_scripts.methods import (
     LLM_METHODS,
@@ -71,6 +86,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--instruction", default=None, metavar="TEXT",
                     help="the user's instruction for the planner (e.g. 'drive conservatively'"
                          "); the mpc baseline ignores it")
+    ap.add_argument("--instruction-set", choices=sorted(INSTRUCTION_SETS), metavar="NAME",
+                    help="run every scene once per phrasing of the set (styles: "
+                         "conservative / none / aggressive, several phrasings each) and "
+                         "write styles.csv and style_table.md")
     ap.add_argument("--resume", action="store_true",
                     help="keep the rows of OUT/results.csv (an earlier, interrupted run of "
                          "the same code) and run only the scenes it lacks; error rows are "
@@ -151,6 +170,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             return 2
         scene_file = str(args.scene.resolve())
         jobs = [(m, sc.family, sc.seed) for sc in scenes for m in methods]
+    if args.instruction_set is not None:
+        if args.instruction is not None or args.resume or replay is not None:
+            ap.error("--instruction-set runs its own instructions; it does not combine "
+                     "with --instruction, --resume or lmpc-replay")
+        return run_instruction_set(args, jobs, work_dir, scene_file, scene_seeds, latency)
     rows: list[dict[str, Any]] = []
     if args.resume:
         try:
@@ -209,6 +233,69 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
               f"{rows[0]['detail']}", file=sys.stderr, flush=True)
         return 1
     return 0
+
+
+def run_instruction_set(args: argparse.Namespace, jobs: list[tuple[str, str, int]],
+                        work_dir: str, scene_file: Optional[str], scene_seeds: bool,
+                        latency: tuple[Optional[float], Optional[float]]) -> int:
+    """Every job once per (style, phrasing) of ``args.instruction_set``: styles.csv,
+    style_table.md, and the normal outputs of the uninstructed runs."""
+    import csv
+
+    phrasings = INSTRUCTION_SETS[args.instruction_set]
+    t0 = time.monotonic()
+    all_rows: list[dict[str, Any]] = []
+    normal: list[dict[str, Any]] = []
+    interrupted = False
+    for k, (style, text) in enumerate(phrasings):
+        log_dir = args.out / ("decisions" if text is None else f"decisions-{k}")
+        settings = RunSettings(
+            work_dir=work_dir, scene_file=scene_file, instruction=text, log_dir=str(log_dir),
+            scene_seed=scene_seeds, latency=latency,
+            planner_config=str(args.planner_config.resolve()) if args.planner_config
+            else None)
+        rows: list[dict[str, Any]] = []
+
+        def progress(done: int, row: dict[str, Any], elapsed: float) -> None:
+            print(f"[{style} {text!r} {done}/{len(jobs)}] {row['family']} seed "
+                  f"{row['seed']} {row['method']}: {row['outcome']} t={row['time_s']}s "
+                  f"min gap {row.get('min_gap_m')} m ({row['wall_s']}s wall)", flush=True)
+
+        interrupted = run_scenes(jobs, settings, build=build, prepare=prepare,
+                                 workers=args.workers, rows=rows,
+                                 results_csv=args.out / f"results-{k}.csv",
+                                 progress=progress)
+        (args.out / f"results-{k}.csv").unlink(missing_ok=True)
+        for r in rows:
+            r.update(style=style, instruction=text or "")
+        all_rows += rows
+        if text is None:
+            normal = rows
+        if interrupted:
+            break
+    columns = ("family", "seed", "method", "style", "instruction", "outcome", "collision",
+               "fail", "time_s", "overall_cost", *STYLE_COLUMNS, "wall_s", "detail")
+    with open(args.out / "styles.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(sorted(all_rows, key=lambda r: (r["family"], r["method"], r["seed"],
+                                                         r["style"], r["instruction"])))
+    parts = []
+    for method in sorted({r["method"] for r in all_rows}):
+        mine = [r for r in all_rows if r["method"] == method]
+        table = style_table_md(style_summary(mine), direction_share(mine))
+        parts.append(f"### {method}\n\n{table}")
+    head = ("Instruction set " + args.instruction_set + ": " + "; ".join(
+        f"{s}: {t!r}" if t else f"{s}: no instruction" for s, t in phrasings) + "\n\n")
+    text_md = head + "\n".join(parts)
+    if interrupted:
+        text_md = "PARTIAL: interrupted.\n\n" + text_md
+    (args.out / "style_table.md").write_text(text_md)
+    print(text_md)
+    if normal:
+        write_outputs(args, normal, args.out / "decisions", time.monotonic() - t0,
+                      None, latency=latency)
+    return 130 if interrupted else 0
 
 
 def write_outputs(args: argparse.Namespace, rows: list[dict[str, Any]], log_dir: Path,

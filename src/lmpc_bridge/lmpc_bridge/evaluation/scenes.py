@@ -26,6 +26,7 @@ from lmpc_bridge.evaluation.rows import (
     scene_log_name,
     write_rows,
 )
+from lmpc_bridge.evaluation.style import style_metrics
 from lmpc_bridge.runner import ControllerLike, PlannerLike, run_episode
 
 FAMILY_MAX_TIME_S = 200.0
@@ -176,6 +177,8 @@ def _run_scene(method: str, family: str, seed: int, settings: RunSettings, build
         "wall_s": round(time.perf_counter() - started, 2),
         **latency_cells(method, settings.latency),
         "detail": detail,
+        # the style figures (lmpc_bridge.evaluation.style); not columns of results.csv
+        **style_metrics(result.record),
         **own,
     }
 

@@ -1,0 +1,181 @@
+"""Driving style, measured: per-episode figures of how the ego drove (gaps, deceleration,
+jerk, the gaps it accepted) from the episode record, the instruction sets of
+``benchmark.py --instruction-set`` and the style table (per family and style).
+
+Definitions (all from :class:`lmpc_bridge.record.EpisodeRecord`, one record per step):
+
+- ``mean_gap_m``: mean over the steps with another vehicle within sensing range of the
+  smallest bumper-to-bumper gap (``NearbyVehicle.gap_m``) on that step; ``min_gap_m``:
+  the smallest gap of the episode;
+- ``peak_decel_mps2``: the strongest deceleration of the ego (``-min a_mps2``, 0 if it
+  never braked); ``peak_jerk_mps3``: the largest ``|a_k - a_{k-1}| / dt``;
+- ``lc_gap_m``: at each lane change (the lane index changes on the same edge, both
+  normal lanes) the smallest gap to any other vehicle on that step; the episode's value
+  is the smallest over its lane changes (nan: none);
+- ``junction_gap_m``: at each junction entry (a normal lane followed by an internal
+  ``:`` lane) the smallest gap to a vehicle whose heading differs from the ego's by more
+  than ``CROSS_HEADING_RAD`` (crossing, merging, oncoming traffic; not the leader or the
+  queue) and that moves (``v >= MOVING_MPS``); the smallest over the entries (nan: no
+  such vehicle on any entry).
+"""
+from __future__ import annotations
+
+import math
+import statistics
+from typing import Any, Optional
+
+from lmpc_bridge.evaluation.table import markdown
+from lmpc_bridge.record import EpisodeRecord
+
+CROSS_HEADING_RAD = math.radians(30.0)
+MOVING_MPS = 0.5
+STYLE_COLUMNS = ("mean_gap_m", "min_gap_m", "peak_decel_mps2", "peak_jerk_mps3", "lc_gap_m",
+                 "lc_changes", "junction_gap_m")
+STYLES = ("conservative", "normal", "aggressive")
+
+INSTRUCTION_SETS: dict[str, tuple[tuple[str, Optional[str]], ...]] = {
+    # (style, the user's text; None: no instruction)
+    "styles": (
+        ("conservative", "drive conservatively"),
+        ("conservative", "take it easy, no risks"),
+        ("normal", None),
+        ("aggressive", "I'm in a hurry"),
+        ("aggressive", "drive aggressively"),
+    ),
+    "styles-short": (
+        ("conservative", "drive conservatively"),
+        ("normal", None),
+        ("aggressive", "drive aggressively"),
+    ),
+}
+"""``benchmark.py --instruction-set NAME``: each scene once per (style, phrasing)."""
+
+
+def _edge_index(lane_id: Optional[str]) -> Optional[tuple[str, str]]:
+    if not lane_id or lane_id.startswith(":") or "_" not in lane_id:
+        return None
+    edge, _, idx = lane_id.rpartition("_")
+    return edge, idx
+
+
+def _angle(a: float) -> float:
+    return abs((a + math.pi) % (2.0 * math.pi) - math.pi)
+
+
+def style_metrics(record: EpisodeRecord) -> dict[str, Any]:
+    """The style figures of one episode (see the module doc); nan where undefined."""
+    steps = record.steps
+    nearest = [min(n.gap_m for n in s.nearby) for s in steps if s.nearby]
+    accels = [s.a_mps2 for s in steps]
+    jerks = [abs(b - a) / record.dt_s for a, b in zip(accels, accels[1:])]
+    lc_gaps: list[float] = []
+    jn_gaps: list[float] = []
+    changes = 0
+    for prev, cur in zip(steps, steps[1:]):
+        p, c = _edge_index(prev.lane_id), _edge_index(cur.lane_id)
+        if p is not None and c is not None and p[0] == c[0] and p[1] != c[1]:
+            changes += 1
+            if cur.nearby:
+                lc_gaps.append(min(n.gap_m for n in cur.nearby))
+        if p is not None and cur.lane_id is not None and cur.lane_id.startswith(":"):
+            crossing = [n.gap_m for n in cur.nearby if n.v_mps >= MOVING_MPS
+                        and _angle(n.yaw_rad - cur.yaw_rad) > CROSS_HEADING_RAD]
+            if crossing:
+                jn_gaps.append(min(crossing))
+    return {
+        "mean_gap_m": round(statistics.fmean(nearest), 3) if nearest else math.nan,
+        "min_gap_m": round(min(nearest), 3) if nearest else math.nan,
+        "peak_decel_mps2": round(max(0.0, -min(accels)), 3) if accels else math.nan,
+        "peak_jerk_mps3": round(max(jerks), 3) if jerks else math.nan,
+        "lc_gap_m": round(min(lc_gaps), 3) if lc_gaps else math.nan,
+        "lc_changes": changes,
+        "junction_gap_m": round(min(jn_gaps), 3) if jn_gaps else math.nan,
+    }
+
+
+def _mean(values: Any) -> float:
+    finite = [float(v) for v in values if isinstance(v, (int, float)) and math.isfinite(v)]
+    return statistics.fmean(finite) if finite else math.nan
+
+
+def style_summary(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
+    """Per family and style (over all its phrasings and scenes): counts of collisions and
+    fails, means of time, O.C. and the style figures (nan-skipping; ``*_n``: how many
+    scenes had a value)."""
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    for family in sorted({r["family"] for r in rows}):
+        out[family] = {}
+        for style in STYLES:
+            sel = [r for r in rows if r["family"] == family and r.get("style") == style]
+            if not sel:
+                continue
+            agg: dict[str, Any] = {
+                "runs": len(sel), "collisions": sum(int(r["collision"]) for r in sel),
+                "fails": sum(int(r["fail"]) for r in sel)}
+            for k in ("time_s", "overall_cost", "mean_gap_m", "min_gap_m", "peak_decel_mps2",
+                      "peak_jerk_mps3", "lc_gap_m", "junction_gap_m"):
+                agg[k] = round(_mean(r.get(k) for r in sel), 3)
+            agg["lc_gap_m_n"] = sum(1 for r in sel if _finite(r.get("lc_gap_m")))
+            agg["junction_gap_m_n"] = sum(1 for r in sel if _finite(r.get("junction_gap_m")))
+            out[family][style] = agg
+    return out
+
+
+def _finite(v: Any) -> bool:
+    return isinstance(v, (int, float)) and math.isfinite(v)
+
+
+def direction_share(rows: list[dict[str, Any]], key: str = "time_s", *,
+                    min_diff: float = 0.05) -> dict[str, dict[str, Any]]:
+    """Per family: of the scenes where the style can matter (the conservative and the
+    aggressive mean of ``key`` over the phrasings differ by more than ``min_diff`` from
+    each other or from normal), how many follow the expected order aggressive <= normal
+    <= conservative with aggressive < conservative."""
+    out: dict[str, dict[str, Any]] = {}
+    for family in sorted({r["family"] for r in rows}):
+        per: dict[int, dict[str, list[float]]] = {}
+        for r in rows:
+            if r["family"] == family and _finite(r.get(key)) and r.get("style") in STYLES:
+                per.setdefault(int(r["seed"]), {}).setdefault(r["style"], []).append(
+                    float(r[key]))
+        matter = follow = 0
+        for by in per.values():
+            if not all(s in by for s in STYLES):
+                continue
+            c, n, a = (statistics.fmean(by[s]) for s in STYLES)
+            if max(c, n, a) - min(c, n, a) <= min_diff:
+                continue
+            matter += 1
+            follow += int(a <= n + min_diff and n <= c + min_diff and a < c)
+        out[family] = {"matter": matter, "follow": follow,
+                       "share": round(follow / matter, 3) if matter else math.nan}
+    return out
+
+
+def style_table_md(summary: dict[str, dict[str, dict[str, Any]]],
+                   shares: Optional[dict[str, dict[str, Any]]] = None) -> str:
+    """The style table: one row a family and style."""
+
+    def f(v: Any, fmt: str) -> str:
+        return format(v, fmt) if _finite(v) else "-"
+
+    rows = []
+    for family, styles in summary.items():
+        for style, a in styles.items():
+            rows.append([
+                family.upper(), style, f"{a['runs']}", f"{a['collisions']}", f"{a['fails']}",
+                f(a["time_s"], ".1f"), f(a["mean_gap_m"], ".1f"), f(a["min_gap_m"], ".1f"),
+                f(a["peak_decel_mps2"], ".1f"), f(a["peak_jerk_mps3"], ".1f"),
+                f"{f(a['lc_gap_m'], '.1f')} ({a['lc_gap_m_n']})",
+                f"{f(a['junction_gap_m'], '.1f')} ({a['junction_gap_m_n']})",
+                f(a["overall_cost"], ".1f")])
+    text = markdown(["Scenario", "Style", "Runs", "Coll.", "Fail", "Time", "Mean gap",
+                     "Min gap", "Peak decel", "Peak jerk", "LC gap (n)", "Junction gap (n)",
+                     "O.C."], rows)
+    if shares:
+        text += "\nPer scene, time in the expected order (aggressive <= normal <= " \
+                "conservative, aggressive < conservative) where the style changes it:\n\n"
+        text += markdown(["Scenario", "Scenes where style matters", "Follow", "Share"], [
+            [fam.upper(), f"{s['matter']}", f"{s['follow']}", f(s["share"], ".0%")]
+            for fam, s in shares.items()])
+    return text
