@@ -18,6 +18,11 @@ CONSERVATIVE_WORDS = re.compile(
 AGGRESSIVE_WORDS = re.compile(r"\b(aggressive|aggressively|assertive|assertively|hurry|rush"
                               r"|rushing|fast|faster|quick|quickly|sporty|overtake|overtaking"
                               r"|late|urgent|urgently)\b", re.I)
+CONSERVATIVE_PHRASES = re.compile(
+    r"\b(take it easy|easy does it|no risks?|without (taking )?(any )?risks?"
+    r"|(there is |i'm |i am )?(in )?no hurry|not in a hurry|don't rush|do not rush"
+    r"|no rush)\b", re.I)
+"""Conservative wording that a negation carries (checked before the words)."""
 _NEGATION = re.compile(r"\b(not|don't|dont|never|no|avoid|without)\W+(\w+\W+){0,2}$", re.I)
 CLOSED_LANE = re.compile(
     r"\b(?P<side>right|left)(?:most|-most| hand)?\s+lane\b[^.;!?]*?"
@@ -60,7 +65,8 @@ def parse_instruction(text: Optional[str]) -> Intent:
     aggressive wording when both occur (the safer reading)."""
     if not text:
         return Intent()
-    conservative = _mentions(CONSERVATIVE_WORDS, text)
+    conservative = bool(CONSERVATIVE_PHRASES.search(text)) or \
+        _mentions(CONSERVATIVE_WORDS, text)
     aggressive = _mentions(AGGRESSIVE_WORDS, text)
     style = "conservative" if conservative else "aggressive" if aggressive else "normal"
     sides = {m.group("side").lower() for m in CLOSED_LANE.finditer(text)}

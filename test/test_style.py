@@ -1,0 +1,96 @@
+"""Driving style from the user's text (issue 20): the style figures of an episode record,
+the instruction set of ``benchmark.py --instruction-set`` and, per family, two dev scenes
+on which the rules reasoner told "drive aggressively" must reach the target sooner than
+told "drive conservatively", without a collision and with every applied control within
+the MPC's bounds."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from lmpc_bridge.evaluation.scenes import SceneSpec
+from lmpc_bridge.evaluation.style import (
+    INSTRUCTION_SETS,
+    direction_share,
+    style_metrics,
+    style_summary,
+)
+from lmpc_bridge.record import EpisodeRecord, NearbyVehicle, StepRecord
+from lmpc_bridge.runner import run_episode
+from lmpc_bridge.sim import SumoSim
+from lmpc_llm_planner.backends.rules.instruction import parse_instruction
+from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE
+from lmpc_scripts import methods
+
+STYLE_SCENES = {  # family -> two development scenes (seeds 100-124) where style matters
+    "si": (100, 101),
+    "usi": (100, 101),
+    "lane": (100, 101),
+    "rab": (100, 101),
+    "eoa": (100, 101),
+}
+
+
+def _car(gap: float, yaw: float = 0.0, v: float = 5.0) -> NearbyVehicle:
+    return NearbyVehicle(id="c", kind="car", x_m=0.0, y_m=0.0, yaw_rad=yaw, v_mps=v,
+                         v_max_mps=10.0, a_mps2=0.0, gap_m=gap)
+
+
+def _step(k: int, lane: str, a: float, nearby: tuple[NearbyVehicle, ...] = ()) -> StepRecord:
+    return StepRecord(step=k, t_s=0.1 * k, x_m=0.0, y_m=0.0, yaw_rad=0.0, v_mps=5.0,
+                      a_mps2=a, steer_rad=0.0, lane_id=lane, nearby=nearby)
+
+
+def test_the_style_figures_of_a_record() -> None:
+    steps = (
+        _step(1, "e_0", 0.0, (_car(20.0),)),
+        _step(2, "e_1", -3.0, (_car(8.0), _car(12.0))),  # a lane change, nearest 8 m
+        _step(3, "e_1", -1.0),
+        _step(4, ":j_0", 0.0, (_car(4.0), _car(9.0, yaw=math.pi / 2))),  # junction entry
+    )
+    rec = EpisodeRecord(family="x", seed=0, dt_s=0.1, max_time_s=10.0,
+                        target_center=(0.0, 0.0), target_radius_m=1.0, steps=steps)
+    m = style_metrics(rec)
+    assert m["min_gap_m"] == 4.0 and m["mean_gap_m"] == pytest.approx((20 + 8 + 4) / 3, abs=1e-3)
+    assert m["peak_decel_mps2"] == 3.0 and m["peak_jerk_mps3"] == pytest.approx(30.0)
+    assert m["lc_changes"] == 1 and m["lc_gap_m"] == 8.0
+    assert m["junction_gap_m"] == 9.0  # the crossing car, not the one ahead in its lane
+
+
+def test_the_direction_share_counts_scenes_where_the_style_changes_the_time() -> None:
+    rows = []
+    for seed, (c, n, a) in {1: (30, 25, 20), 2: (20, 20, 20), 3: (20, 25, 30)}.items():
+        for style, t in zip(("conservative", "normal", "aggressive"), (c, n, a)):
+            rows.append({"family": "f", "seed": seed, "style": style, "time_s": t,
+                         "collision": 0, "fail": 0})
+    share = direction_share(rows)["f"]
+    assert share == {"matter": 2, "follow": 1, "share": 0.5}
+    assert style_summary(rows)["f"]["aggressive"]["time_s"] == pytest.approx(70 / 3, abs=1e-3)
+
+
+def test_every_phrasing_of_the_style_set_reads_as_its_style() -> None:
+    for name, phrasings in INSTRUCTION_SETS.items():
+        for style, text in phrasings:
+            assert parse_instruction(text).style == style, (name, text)
+
+
+@pytest.mark.parametrize("family", sorted(STYLE_SCENES))
+def test_aggressive_is_faster_than_conservative(family: str, tmp_path: Path) -> None:
+    sim = SumoSim(work_dir=tmp_path / "scenes")
+    bound = DEFAULT_VEHICLE
+    for seed in STYLE_SCENES[family]:
+        times = {}
+        for text in ("drive conservatively", "drive aggressively"):
+            wiring = methods.build(SceneSpec("lmpc-rules", family, seed, instruction=text))
+            res = run_episode(sim, family=family, seed=seed, controller=wiring.controller,
+                              planner=wiring.planner, max_time_s=120.0)
+            assert res.outcome == "reached", (family, seed, text, res.outcome, res.detail)
+            for s in res.record.steps:
+                assert -bound.max_decel_mps2 - 1e-6 <= s.applied_accel_mps2 \
+                    <= bound.max_accel_mps2 + 1e-6
+                assert abs(s.applied_steer_rad) <= bound.max_steer_rad + 1e-6
+            times[text] = res.metrics.time_s
+        assert times["drive aggressively"] < times["drive conservatively"], (family, seed,
+                                                                             times)
