@@ -25,11 +25,11 @@ from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE
 from lmpc_scripts import methods
 
 STYLE_SCENES = {  # family -> two development scenes (seeds 100-124) where style matters
-    "si": (100, 101),
-    "usi": (100, 101),
-    "lane": (100, 101),
-    "rab": (100, 101),
-    "eoa": (100, 101),
+    "si": (101, 104),
+    "usi": (102, 106),
+    "lane": (102, 104),
+    "rab": (106, 107),
+    "eoa": (102, 107),
 }
 
 
