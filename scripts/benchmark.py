@@ -247,8 +247,15 @@ def run_instruction_set(args: argparse.Namespace, jobs: list[tuple[str, str, int
     all_rows: list[dict[str, Any]] = []
     normal: list[dict[str, Any]] = []
     interrupted = False
-    for k, (style, text) in enumerate(phrasings):
-        log_dir = args.out / ("decisions" if text is None else f"decisions-{k}")
+    # family by family, every phrasing of a family before the next family: an
+    # interrupted run still has whole families to compare
+    groups = [[j for j in jobs if j[1] == fam] for fam in dict.fromkeys(j[1] for j in jobs)]
+    for k, (fam_jobs, (style, text)) in enumerate(
+            (g, p) for g in groups for p in phrasings):
+        if interrupted:
+            break
+        phr = phrasings.index((style, text))
+        log_dir = args.out / ("decisions" if text is None else f"decisions-{phr}")
         settings = RunSettings(
             work_dir=work_dir, scene_file=scene_file, instruction=text, log_dir=str(log_dir),
             scene_seed=scene_seeds, latency=latency,
@@ -257,11 +264,11 @@ def run_instruction_set(args: argparse.Namespace, jobs: list[tuple[str, str, int
         rows: list[dict[str, Any]] = []
 
         def progress(done: int, row: dict[str, Any], elapsed: float) -> None:
-            print(f"[{style} {text!r} {done}/{len(jobs)}] {row['family']} seed "
+            print(f"[{style} {text!r} {done}/{len(fam_jobs)}] {row['family']} seed "
                   f"{row['seed']} {row['method']}: {row['outcome']} t={row['time_s']}s "
                   f"min gap {row.get('min_gap_m')} m ({row['wall_s']}s wall)", flush=True)
 
-        interrupted = run_scenes(jobs, settings, build=build, prepare=prepare,
+        interrupted = run_scenes(fam_jobs, settings, build=build, prepare=prepare,
                                  workers=args.workers, rows=rows,
                                  results_csv=args.out / f"results-{k}.csv",
                                  progress=progress)
@@ -270,9 +277,7 @@ def run_instruction_set(args: argparse.Namespace, jobs: list[tuple[str, str, int
             r.update(style=style, instruction=text or "")
         all_rows += rows
         if text is None:
-            normal = rows
-        if interrupted:
-            break
+            normal += rows
     columns = ("family", "seed", "method", "style", "instruction", "outcome", "collision",
                "fail", "time_s", "overall_cost", *STYLE_COLUMNS, "wall_s", "detail")
     with open(args.out / "styles.csv", "w", newline="") as fh:
