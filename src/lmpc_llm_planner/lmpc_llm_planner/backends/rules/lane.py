@@ -41,6 +41,9 @@ SLOW_LEADER_GAIN_MPS = 2.0
 with no leader in range) than the ego's lane for an overtake (aggressive: 1 m/s)."""
 SLOW_LEADER_FRACTION = 0.8
 """A leader counts as slow below this fraction of the speed limit."""
+CONSERVATIVE_OVERTAKE_FRACTION = 0.4
+"""Conservative style overtakes only a leader crawling below this fraction of the limit
+(eoa seeds 105/106: behind a hazard crawling at ~2 m/s it timed out), with its larger gaps."""
 LC_MIN_GAP_M = 6.0
 """Bumper gap to the new leader / follower a lane change needs at least."""
 LC_HEADWAY_S = 0.8
@@ -288,7 +291,9 @@ def choose_lane(inp: RuleInputs, plan: Plan, lv: LaneView, lead: LeaderState
             return "change"
         want = Want(lv.toward, f"my route needs {lv.need} lane change(s) within "
                     f"{lv.dist_end_m:.0f} m", urgent=lv.dist_end_m < merge_m)
-    if want is None and lead.slow and style != "conservative" and lead.lead is not None:
+    if want is None and lead.slow and lead.lead is not None and (
+            style != "conservative" or lead.lead.agent.v_mps
+            < CONSERVATIVE_OVERTAKE_FRACTION * lv.here.speed_limit_mps):
         want = overtake(inp, lv, lead.lead)
     return want
 

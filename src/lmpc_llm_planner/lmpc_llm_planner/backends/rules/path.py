@@ -19,12 +19,20 @@ from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE
 from lmpc_llm_planner.scene import AgentView
 
 from .emergency import brake_hard, brakes_hard
-from .intervals import brake_index, mildest_accel, neutral, stop_index
+from .intervals import accel_index, brake_index, mildest_accel, neutral, stop_index
 from .plan import Plan, RuleInputs, changing_lanes
 from .scene_helpers import (
     ALONG_RAD, HARD_BRAKE_MPS2, STANDOFF_M, distance_to_path, other_lane, queued_at_junction,
     route_path,
 )
+
+AGGRESSIVE_SPEED_FRACTION = 0.95
+"""Aggressive style: on a clear way the ego speeds up until this fraction of the limit
+(normal: 0.8) with ``AGGRESSIVE_ACCEL_MPS2``; the MPC's speed and control bounds apply."""
+AGGRESSIVE_ACCEL_MPS2 = 2.0
+CONSERVATIVE_SPEED_FRACTION = 0.65
+"""Conservative style: on a clear way the ego speeds up only below this fraction of the
+limit, holds up to 10 points above it and brakes mildly beyond (a slower approach)."""
 
 
 def path_threats(inp: RuleInputs, plan: Plan, *, committed: bool
@@ -124,7 +132,18 @@ def go_rule(inp: RuleInputs, plan: Plan) -> None:
     if close is not None:
         _follow(inp, plan, close)
         return
-    if ego.v_mps < 0.8 * limit:
+    style = inp.intent.style
+    if style == "aggressive" and ego.v_mps < AGGRESSIVE_SPEED_FRACTION * limit:
+        plan.accel_index = accel_index(inp.accel, AGGRESSIVE_ACCEL_MPS2)
+        plan.notes.append(f"The way is clear and the user is in a hurry; I speed up "
+                          f"briskly towards the {limit:.1f} m/s limit.")
+    elif style == "conservative" and ego.v_mps >= CONSERVATIVE_SPEED_FRACTION * limit:
+        if ego.v_mps >= (CONSERVATIVE_SPEED_FRACTION + 0.1) * limit:
+            plan.accel_index = brake_index(inp.accel, 0.0, True)  # the mildest braking
+        plan.notes.append(f"The user asked for careful driving; I keep below "
+                          f"{CONSERVATIVE_SPEED_FRACTION:.0%} of the {limit:.1f} m/s limit.")
+    elif ego.v_mps < (CONSERVATIVE_SPEED_FRACTION if style == "conservative"
+                      else 0.8) * limit:
         plan.accel_index = mildest_accel(inp.accel)
         if not plan.notes:
             plan.notes.append(
