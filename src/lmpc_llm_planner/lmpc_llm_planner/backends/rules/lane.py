@@ -44,6 +44,13 @@ SLOW_LEADER_FRACTION = 0.8
 CONSERVATIVE_OVERTAKE_FRACTION = 0.4
 """Conservative style overtakes only a leader crawling below this fraction of the limit
 (eoa seeds 105/106: behind a hazard crawling at ~2 m/s it timed out), with its larger gaps."""
+AGGRESSIVE_OVERTAKE_AFTER_S = 1.0
+"""Aggressive style: no overtake (with its shorter gaps) in the first second of an episode,
+while the simulation still inserts vehicles the first observation did not show (eoa seed
+104: one appeared 1 m behind in the target lane 0.3 s after the change began)."""
+LATE_MERGE_SPEED_DIFF_MPS = 4.0
+"""Aggressive style: the late merge is made only into a lane whose vehicles near the ego
+are at most this much slower than the ego (``slower_target_lane``)."""
 LC_MIN_GAP_M = 6.0
 """Bumper gap to the new leader / follower a lane change needs at least."""
 LC_HEADWAY_S = 0.8
@@ -279,8 +286,11 @@ def choose_lane(inp: RuleInputs, plan: Plan, lv: LaneView, lead: LeaderState
     # towards the lane the route needs: at once (normal, conservative: measured on
     # lane seeds 100-124, merging late into the slower traffic cost more in gaps and
     # harsh braking than the fast lane saved in time), late only when aggressive
+    # aggressive: merging late into a much slower lane means squeezing in among its cars
+    # at speed (lane seeds 110/118 collided): then at once, as the other styles
     urgent_merge = lv.need > 0 and (style != "aggressive"
-                                    or lv.dist_end_m < merge_m * LANE_MERGE_AGGRESSIVE)
+                                    or lv.dist_end_m < merge_m * LANE_MERGE_AGGRESSIVE
+                                    or slower_target_lane(inp, lv) is not None)
     want: Optional[Want] = None
     if lv.here.id in lv.closed and (lv.make_room or lv.dist_end_m <= CLOSED_LOOKAHEAD_M):
         want = _leave_closed(lv)
@@ -293,7 +303,8 @@ def choose_lane(inp: RuleInputs, plan: Plan, lv: LaneView, lead: LeaderState
                     f"{lv.dist_end_m:.0f} m", urgent=lv.dist_end_m < merge_m)
     if want is None and lead.slow and lead.lead is not None and (
             style != "conservative" or lead.lead.agent.v_mps
-            < CONSERVATIVE_OVERTAKE_FRACTION * lv.here.speed_limit_mps):
+            < CONSERVATIVE_OVERTAKE_FRACTION * lv.here.speed_limit_mps) and (
+            style != "aggressive" or inp.scene.obs.stamp_s >= AGGRESSIVE_OVERTAKE_AFTER_S):
         want = overtake(inp, lv, lead.lead)
     return want
 
@@ -337,7 +348,8 @@ def merge_along_route(inp: RuleInputs, plan: Plan, lv: LaneView) -> bool:
     if step_c is None and lv.route_lane is not None and lv.route_lane != here.id:
         step_c = scene.route_candidate_id
     if step_c is None or not (inp.intent.style != "aggressive"
-                              or lv.dist_end_m < LANE_MERGE_FORCE_M):
+                              or lv.dist_end_m < LANE_MERGE_FORCE_M
+                              or slower_target_lane(inp, lv) is not None):
         return False
     # the route candidate, as before rule 8 existed: the MPC merges along it
     # and its safety term keeps the gaps; SUMO drivers make room. A strict gap
@@ -354,6 +366,23 @@ def merge_along_route(inp: RuleInputs, plan: Plan, lv: LaneView) -> bool:
         f"My route needs {lv.need} lane change(s) within {lv.dist_end_m:.0f} m; I "
         "move towards that lane now and keep safe gaps.")
     return True
+
+
+def slower_target_lane(inp: RuleInputs, lv: LaneView) -> Optional[float]:
+    """The speed of the slowest vehicle in the next lane towards the route's lanes, from
+    beside the ego to ``SLOW_LEADER_RANGE_M`` ahead, when it drives
+    ``LATE_MERGE_SPEED_DIFF_MPS`` slower than the ego (else None)."""
+    if lv.toward is None or lv.toward not in lv.siblings:
+        return None
+    target = lv.siblings[lv.toward].id
+    ego = inp.scene.obs.ego
+    slowest: Optional[float] = None
+    for v in inp.scene.agents:
+        lon = v.kin.longitudinal_m
+        if v.agent.lane_id == target and -ego.length_m <= lon <= SLOW_LEADER_RANGE_M \
+                and v.agent.v_mps < ego.v_mps - LATE_MERGE_SPEED_DIFF_MPS:
+            slowest = v.agent.v_mps if slowest is None else min(slowest, v.agent.v_mps)
+    return slowest
 
 
 def overtake(inp: RuleInputs, lv: LaneView, lead_here: AgentView) -> Optional[Want]:
