@@ -127,6 +127,6 @@ def next_junction_m(scene: Scene) -> Optional[float]:
             return None
         stop = stops.get(lid)
         if stop is not None and (stop.signalized or len(incoming[stop.junction_id]) >= 2
-                               or len({lk.direction for lk in lane.successors}) >= 2):
+                                 or len({lk.direction for lk in lane.successors}) >= 2):
             return max(0.0, dist)
     return None
