@@ -212,13 +212,17 @@ def test_aggressive_merges_at_once_into_a_much_slower_lane(exit_left, planner_co
     assert lane_rule(inp, plan) == "keep"
 
 
-def test_aggressive_overtakes_only_after_the_first_second(road, planner_config, mpc_config):
-    # eoa seed 104: a car inserted 1 m behind in the target lane 0.3 s into the episode
-    def rule(stamp_s):
-        obs = road_obs(road, [car("slow", x_m=80.0, v_mps=6.0)], stamp_s=stamp_s)
-        inp = inputs(obs, planner_config, mpc_config, instruction="drive aggressively")
+def test_aggressive_gaps_apply_only_after_the_first_second(road, planner_config, mpc_config):
+    # eoa seed 104: a car inserted 1 m behind in the target lane 0.3 s into the episode;
+    # here a car ~14 m behind in the left lane: inside the normal gap, outside the
+    # aggressive one
+    def rule(stamp_s, instruction="drive aggressively"):
+        obs = road_obs(road, [car("slow", x_m=80.0, v_mps=6.0),
+                              car("side", x_m=31.5, v_mps=12.0, left=True)], stamp_s=stamp_s)
+        inp = inputs(obs, planner_config, mpc_config, instruction=instruction)
         plan = fresh_plan(inp)
         return lane_rule(inp, plan), label(inp, plan)
 
-    assert rule(0.0) == ("keep", "continue in lane")
     assert rule(5.0) == ("change", "change to the left lane")
+    assert rule(5.0, instruction=None)[1] == "continue in lane"
+    assert rule(0.0) == ("wait", "continue in lane")
