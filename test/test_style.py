@@ -79,12 +79,12 @@ def test_every_phrasing_of_the_style_set_reads_as_its_style() -> None:
             assert parse_instruction(text).style == style, (name, text)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "issue 20 item 2 open: the rules reasoner's style changes gaps only, so told "
-    "'aggressive' or 'conservative' it reaches at the same time on these scenes (and lane "
-    "102 aggressive collides). Branch i20's speed-by-style rules made all five pass but "
-    "added collisions on the test seeds (lane 20 aggressive, rab 4 conservative): not merged"))
-@pytest.mark.parametrize("family", sorted(STYLE_SCENES))
+@pytest.mark.parametrize("family", [
+    pytest.param(f, marks=pytest.mark.xfail(strict=True, reason=(
+        "issue 20 item 2 open for rab: conservative no longer slows on the ring (it must "
+        "not block it), so on rab 106 'drive conservatively' reached at 28.8 s, "
+        "'aggressively' at 29.1 s (branch i20b, dev seeds)"))) if f == "rab" else f
+    for f in sorted(STYLE_SCENES)])
 def test_aggressive_is_faster_than_conservative(family: str, tmp_path: Path) -> None:
     sim = SumoSim(work_dir=tmp_path / "scenes")
     bound = DEFAULT_VEHICLE

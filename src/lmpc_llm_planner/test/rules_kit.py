@@ -28,11 +28,14 @@ def car(aid: str, *, x_m: float, v_mps: float, left: bool = False, a_mps2: float
         .model_copy(update={"lane_pos_m": x_m + 2.25, "a_mps2": a_mps2})
 
 
-def road_obs(road, agents=(), *, x_m: float = 50.0, v_mps: float = 12.0, left: bool = False):
-    """The ego eastbound on ``straight_road`` at ``x_m`` (right lane, or left)."""
+def road_obs(road, agents=(), *, x_m: float = 50.0, v_mps: float = 12.0, left: bool = False,
+             stamp_s: float = 0.0):
+    """The ego eastbound on ``straight_road`` at ``x_m`` (right lane, or left), observed at
+    ``stamp_s`` (simulation time)."""
     lane = "E0_1" if left else "E0_0"
     y = LEFT_Y_M if left else RIGHT_Y_M
-    ego = syn.ego_state(x_m=x_m, y_m=y, yaw_rad=0.0, v_mps=v_mps, lane_id=lane) \
+    ego = syn.ego_state(x_m=x_m, y_m=y, yaw_rad=0.0, v_mps=v_mps, lane_id=lane,
+                        stamp_s=stamp_s) \
         .model_copy(update={"lane_pos_m": x_m + 2.25})
     return syn.observation(road, ego, agents)
 

@@ -43,7 +43,7 @@ def test_instruction_closed_lane_and_refusals():
 # -- lane choice --------------------------------------------------------------------------------
 def test_slow_leader_conservative_follows_aggressive_overtakes(
         road, planner_config, mpc_config):
-    obs = road_obs(road, [car("slow", x_m=80.0, v_mps=6.0)])
+    obs = road_obs(road, [car("slow", x_m=80.0, v_mps=6.0)], stamp_s=5.0)
     w_c, scene = ask(obs, planner_config, mpc_config, "drive conservatively")
     w_a, _ = ask(obs, planner_config, mpc_config, "drive aggressively")
     assert chosen_label(w_c, scene) == "continue in lane"
@@ -61,13 +61,13 @@ def test_no_overtake_without_a_slow_leader(road, planner_config, mpc_config):
 def test_overtake_waits_for_a_gap_in_the_next_lane(road, planner_config, mpc_config):
     # a faster car just behind in the left lane: changing now would cut it off
     blocked = road_obs(road, [car("slow", x_m=80.0, v_mps=6.0),
-                              car("side", x_m=40.0, v_mps=14.0, left=True)])
+                              car("side", x_m=40.0, v_mps=14.0, left=True)], stamp_s=5.0)
     w, scene = ask(blocked, planner_config, mpc_config, "drive aggressively")
     assert chosen_label(w, scene) == "continue in lane"
     assert "side" in w.scenario_encoding.attention
     # the same car far behind leaves the gap
     free = road_obs(road, [car("slow", x_m=80.0, v_mps=6.0),
-                           car("side", x_m=-30.0, v_mps=14.0, left=True)])
+                           car("side", x_m=-30.0, v_mps=14.0, left=True)], stamp_s=5.0)
     w2, scene2 = ask(free, planner_config, mpc_config, "drive aggressively")
     assert chosen_label(w2, scene2) == "change to the left lane"
 

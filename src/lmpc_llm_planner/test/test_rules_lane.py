@@ -194,3 +194,35 @@ def test_urgent_change_behind_a_faster_car_gets_ahead_else_lets_it_pass(
     inp = inputs(beside, planner_config, mpc_config, instruction="drive aggressively")
     plan = fresh_plan(inp)
     assert lane_rule(inp, plan) == "wait" and accel_of(inp, plan) < 0.0
+
+
+def test_aggressive_merges_at_once_into_a_much_slower_lane(exit_left, planner_config,
+                                                           mpc_config):
+    # 350 m before the end the aggressive style keeps its lane (late merge); with the
+    # left lane's cars 6 m/s slower than the ego it merges at once instead (lane seeds
+    # 110/118: squeezing in late among slower cars ended in collisions)
+    slow = road_obs(exit_left, [car("l", x_m=80.0, v_mps=6.0, left=True)], stamp_s=5.0)
+    inp = inputs(slow, planner_config, mpc_config, instruction="drive aggressively")
+    plan = fresh_plan(inp)
+    assert lane_rule(inp, plan) == "change"
+    assert label(inp, plan) == "change to the left lane"
+    near = road_obs(exit_left, [car("l", x_m=80.0, v_mps=10.0, left=True)], stamp_s=5.0)
+    inp = inputs(near, planner_config, mpc_config, instruction="drive aggressively")
+    plan = fresh_plan(inp)
+    assert lane_rule(inp, plan) == "keep"
+
+
+def test_aggressive_gaps_apply_only_after_the_first_second(road, planner_config, mpc_config):
+    # eoa seed 104: a car inserted 1 m behind in the target lane 0.3 s into the episode;
+    # here a car ~14 m behind in the left lane: inside the normal gap, outside the
+    # aggressive one
+    def rule(stamp_s, instruction="drive aggressively"):
+        obs = road_obs(road, [car("slow", x_m=80.0, v_mps=6.0),
+                              car("side", x_m=31.5, v_mps=12.0, left=True)], stamp_s=stamp_s)
+        inp = inputs(obs, planner_config, mpc_config, instruction=instruction)
+        plan = fresh_plan(inp)
+        return lane_rule(inp, plan), label(inp, plan)
+
+    assert rule(5.0) == ("change", "change to the left lane")
+    assert rule(5.0, instruction=None)[1] == "continue in lane"
+    assert rule(0.0) == ("wait", "continue in lane")

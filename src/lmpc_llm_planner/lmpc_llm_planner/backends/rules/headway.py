@@ -27,10 +27,14 @@ HEADWAY_MIN_SPEED_MPS = 4.0
 """Below this speed the MPC's own following distance is enough (queues, creeping)."""
 
 
-def wanted_gap_m(v_mps: float, leader_v_mps: float) -> float:
+CONSERVATIVE_HEADWAY_S = 3.0
+"""The time gap of the conservative style (the braking model's gap still applies)."""
+
+
+def wanted_gap_m(v_mps: float, leader_v_mps: float, headway_s: float = HEADWAY_S) -> float:
     """The gap the ego keeps at ``v_mps`` behind a leader driving ``leader_v_mps``."""
     v, vl = v_mps, leader_v_mps
-    return max(HEADWAY_S * v, v * HEADWAY_REACTION_S + v * v / (2.0 * EGO_BRAKE_MPS2)
+    return max(headway_s * v, v * HEADWAY_REACTION_S + v * v / (2.0 * EGO_BRAKE_MPS2)
                - vl * vl / (2.0 * LEADER_BRAKE_MPS2) + STANDOFF_M)
 
 
@@ -46,7 +50,8 @@ def headway_rule(inp: RuleInputs, plan: Plan) -> None:
     if leader is None or leader.agent.v_mps < inp.cfg.moving_speed_mps:
         return  # standing: the stand-off rules (path, go) handle it
     vl = leader.agent.v_mps
-    want = wanted_gap_m(v, vl)
+    want = wanted_gap_m(v, vl, CONSERVATIVE_HEADWAY_S if inp.intent.style == "conservative"
+                        else HEADWAY_S)
     gap = leader.kin.gap_m
     if gap >= want:
         return

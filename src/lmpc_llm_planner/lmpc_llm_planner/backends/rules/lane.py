@@ -42,9 +42,17 @@ with no leader in range) than the ego's lane for an overtake (aggressive: 1 m/s)
 SLOW_LEADER_FRACTION = 0.8
 """A leader counts as slow below this fraction of the speed limit."""
 CRAWLING_FRACTION = 0.4
-"""Making room for an emergency vehicle, the ego still overtakes a leader crawling below
-this fraction of the limit (eoa dev seeds 105, 106, 108: behind a hazard crawling at
-~2 m/s it timed out)."""
+"""A leader crawling below this fraction of the limit is overtaken even by the conservative
+style (with its larger gaps) and while making room for an emergency vehicle (eoa dev
+seeds 105, 106, 108: behind a hazard crawling at ~2 m/s either timed out)."""
+AGGRESSIVE_OVERTAKE_AFTER_S = 1.0
+"""Aggressive style: its shorter lane-change gaps apply only after the first second of an
+episode (before, the normal gaps), while the simulation still inserts vehicles the first
+observation did not show (eoa seed 104: one appeared 1 m behind in the target lane 0.3 s
+after an overtake began)."""
+LATE_MERGE_SPEED_DIFF_MPS = 4.0
+"""Aggressive style: the late merge is made only into a lane whose vehicles near the ego
+are at most this much slower than the ego (``slower_target_lane``)."""
 LC_MIN_GAP_M = 6.0
 """Bumper gap to the new leader / follower a lane change needs at least."""
 LC_HEADWAY_S = 0.8
@@ -281,8 +289,11 @@ def choose_lane(inp: RuleInputs, plan: Plan, lv: LaneView, lead: LeaderState
     # towards the lane the route needs: at once (normal, conservative: measured on
     # lane seeds 100-124, merging late into the slower traffic cost more in gaps and
     # harsh braking than the fast lane saved in time), late only when aggressive
+    # aggressive: merging late into a much slower lane means squeezing in among its cars
+    # at speed (lane seeds 110/118 collided): then at once, as the other styles
     urgent_merge = lv.need > 0 and (style != "aggressive"
-                                    or lv.dist_end_m < merge_m * LANE_MERGE_AGGRESSIVE)
+                                    or lv.dist_end_m < merge_m * LANE_MERGE_AGGRESSIVE
+                                    or slower_target_lane(inp, lv) is not None)
     want: Optional[Want] = None
     if lv.here.id in lv.closed and lv.route_needs_closed:
         plan.notes.append("The user says my lane is closed ahead, but my route goes on only "
@@ -300,9 +311,10 @@ def choose_lane(inp: RuleInputs, plan: Plan, lv: LaneView, lead: LeaderState
         # after the route's own (urgent) change: towards the kerb it eases off for a gap
         # (lane 23: the make-room change first, never easing off, found no gap for 40 s)
         want = _make_room(lv)
-    if want is None and lead.slow and style != "conservative" and lead.lead is not None \
-            and (not lv.make_room
-                 or lead.lead.agent.v_mps < CRAWLING_FRACTION * lv.here.speed_limit_mps):
+    crawling = lead.lead is not None \
+        and lead.lead.agent.v_mps < CRAWLING_FRACTION * lv.here.speed_limit_mps
+    if want is None and lead.slow and lead.lead is not None and (
+            crawling or (style != "conservative" and not lv.make_room)):
         want = overtake(inp, lv, lead.lead)
     return want
 
@@ -351,7 +363,8 @@ def merge_along_route(inp: RuleInputs, plan: Plan, lv: LaneView) -> bool:
     if step_c is None and lv.route_lane is not None and lv.route_lane != here.id:
         step_c = scene.route_candidate_id
     if step_c is None or not (inp.intent.style != "aggressive"
-                              or lv.dist_end_m < LANE_MERGE_FORCE_M):
+                              or lv.dist_end_m < LANE_MERGE_FORCE_M
+                              or slower_target_lane(inp, lv) is not None):
         return False
     # the route candidate, as before rule 8 existed: the MPC merges along it
     # and its safety term keeps the gaps; SUMO drivers make room. A strict gap
@@ -368,6 +381,23 @@ def merge_along_route(inp: RuleInputs, plan: Plan, lv: LaneView) -> bool:
         f"My route needs {lv.need} lane change(s) within {lv.dist_end_m:.0f} m; I "
         "move towards that lane now and keep safe gaps.")
     return True
+
+
+def slower_target_lane(inp: RuleInputs, lv: LaneView) -> Optional[float]:
+    """The speed of the slowest vehicle in the next lane towards the route's lanes, from
+    beside the ego to ``SLOW_LEADER_RANGE_M`` ahead, when it drives
+    ``LATE_MERGE_SPEED_DIFF_MPS`` slower than the ego (else None)."""
+    if lv.toward is None or lv.toward not in lv.siblings:
+        return None
+    target = lv.siblings[lv.toward].id
+    ego = inp.scene.obs.ego
+    slowest: Optional[float] = None
+    for v in inp.scene.agents:
+        lon = v.kin.longitudinal_m
+        if v.agent.lane_id == target and -ego.length_m <= lon <= SLOW_LEADER_RANGE_M \
+                and v.agent.v_mps < ego.v_mps - LATE_MERGE_SPEED_DIFF_MPS:
+            slowest = v.agent.v_mps if slowest is None else min(slowest, v.agent.v_mps)
+    return slowest
 
 
 def overtake(inp: RuleInputs, lv: LaneView, lead_here: AgentView) -> Optional[Want]:
@@ -430,7 +460,10 @@ def gap_blocker(inp: RuleInputs, plan: Plan, crossed: list[Lane], side: str
     (``LC_*`` scaled by the style; beside the ego: gap 0), with "ahead" / "behind"; every
     one of them is attended."""
     ego = inp.scene.obs.ego
-    style_f = LC_STYLE_FACTOR[inp.intent.style]
+    style = inp.intent.style
+    if style == "aggressive" and inp.scene.obs.stamp_s < AGGRESSIVE_OVERTAKE_AFTER_S:
+        style = "normal"
+    style_f = LC_STYLE_FACTOR[style]
     blocker: Optional[tuple[AgentView, str]] = None
     for ln in crossed:
         lead_nb, follow_nb = lane_state(inp.scene, ln.id)

@@ -16,15 +16,31 @@ from typing import Optional
 
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE
 
+from lmpc_llm_planner.route import next_maneuver
 from lmpc_llm_planner.scene import AgentView
 
 from .emergency import brake_hard, brakes_hard
-from .intervals import brake_index, mildest_accel, neutral, stop_index
+from .intervals import accel_index, brake_index, mildest_accel, neutral, stop_index
+from .headway import wanted_gap_m
 from .plan import Plan, RuleInputs, changing_lanes
 from .scene_helpers import (
     ALONG_RAD, HARD_BRAKE_MPS2, STANDOFF_M, distance_to_path, other_lane, queued_at_junction,
     route_path,
 )
+
+AGGRESSIVE_SPEED_FRACTION = 0.95
+"""Aggressive style: on a clear way the ego speeds up until this fraction of the limit
+(normal: 0.8) with ``AGGRESSIVE_ACCEL_MPS2``; the MPC's speed and control bounds apply."""
+AGGRESSIVE_ACCEL_MPS2 = 2.0
+CONSERVATIVE_SPEED_FRACTION = 0.65
+"""Conservative style: on a clear way the ego speeds up only below this fraction of the
+limit, holds up to 10 points above it and brakes mildly beyond (a slower approach)."""
+BRISK_LATERAL_M = 5.0
+"""Vehicles ahead / beside within this lateral offset (the ego's and the next lanes) must
+leave the aggressive speed-up its headway gap (``clear_for_brisk``)."""
+FOLLOWER_HEADWAY_S = 1.5
+"""Conservative slowing needs no vehicle behind in the ego's lane closer than this
+(at that vehicle's speed)."""
 
 
 def path_threats(inp: RuleInputs, plan: Plan, *, committed: bool
@@ -124,7 +140,18 @@ def go_rule(inp: RuleInputs, plan: Plan) -> None:
     if close is not None:
         _follow(inp, plan, close)
         return
-    if ego.v_mps < 0.8 * limit:
+    style = speed_style(inp, plan)
+    if style == "aggressive" and ego.v_mps < AGGRESSIVE_SPEED_FRACTION * limit:
+        plan.accel_index = accel_index(inp.accel, AGGRESSIVE_ACCEL_MPS2)
+        plan.notes.append(f"The way is clear and the user is in a hurry; I speed up "
+                          f"briskly towards the {limit:.1f} m/s limit.")
+    elif style == "conservative" and ego.v_mps >= CONSERVATIVE_SPEED_FRACTION * limit:
+        if ego.v_mps >= (CONSERVATIVE_SPEED_FRACTION + 0.1) * limit:
+            plan.accel_index = brake_index(inp.accel, 0.0, True)  # the mildest braking
+        plan.notes.append(f"The user asked for careful driving; I keep below "
+                          f"{CONSERVATIVE_SPEED_FRACTION:.0%} of the {limit:.1f} m/s limit.")
+    elif ego.v_mps < (CONSERVATIVE_SPEED_FRACTION if style == "conservative"
+                      else 0.8) * limit:
         plan.accel_index = mildest_accel(inp.accel)
         if not plan.notes:
             plan.notes.append(
@@ -132,6 +159,95 @@ def go_rule(inp: RuleInputs, plan: Plan) -> None:
             )
     elif not plan.notes:
         plan.notes.append("The way is clear; I keep my speed.")
+
+
+def speed_style(inp: RuleInputs, plan: Plan) -> str:
+    """The style that sets the clear-way speed here: the user's, except where it must not
+    (then "normal", as without an instruction). Never in an emergency decision (lane seeds
+    109/110/118: speeding up briskly while the emergency checks ran ended in collisions);
+    aggressive only where :func:`clear_for_brisk` finds the way clear; conservative never
+    slows inside a junction, on a roundabout or with a vehicle close behind (stopping
+    there blocks traffic or invites a rear-end collision)."""
+    style = inp.intent.style
+    if inp.emergency or style == "normal":
+        return "normal"
+    if style == "aggressive":
+        return style if clear_for_brisk(inp, plan) else "normal"
+    here = inp.scene.lanes.get(inp.scene.obs.ego.lane_id or "")
+    if here is None or here.internal or here.roundabout or close_follower(inp) is not None:
+        return "normal"
+    return style
+
+
+def clear_for_brisk(inp: RuleInputs, plan: Plan) -> bool:
+    """The rules' own gap checks allow the aggressive speed-up: not changing lanes (nor
+    along a route candidate that crosses lanes), no light or roundabout entry ahead
+    (``_junction_ahead``), and every vehicle ahead
+    or beside in the ego's or a next lane (laterally within ``BRISK_LATERAL_M``) still
+    at least the headway rule's gap (``wanted_gap_m``) away after ``replan_s`` of
+    speeding up to the speed that brings."""
+    cfg = inp.cfg
+    scene = inp.scene
+    ego = scene.obs.ego
+    if changing_lanes(scene, plan) or _crosses_lanes(inp, plan) or _junction_ahead(inp):
+        return False
+    lane = scene.lanes.get(ego.lane_id or "")
+    limit = lane.speed_limit_mps if lane is not None else DEFAULT_VEHICLE.max_speed_mps
+    t = cfg.replan_s
+    v0 = ego.v_mps
+    v1 = max(v0, min(v0 + AGGRESSIVE_ACCEL_MPS2 * t, AGGRESSIVE_SPEED_FRACTION * limit))
+    for v in scene.agents:
+        k = v.kin
+        if k.longitudinal_m <= -0.5 * ego.length_m or abs(k.lateral_m) > BRISK_LATERAL_M \
+                or k.motion == "oncoming":
+            continue
+        vl = max(v.agent.v_mps, 0.0)
+        closing = max(0.0, 0.5 * (v0 + v1) * t - vl * t)
+        if k.gap_m < wanted_gap_m(v1, vl) + closing:
+            return False
+    return True
+
+
+def _crosses_lanes(inp: RuleInputs, plan: Plan) -> bool:
+    """The chosen candidate's lanes on the ego's edge include another lane than its own."""
+    scene = inp.scene
+    here = scene.lanes.get(scene.obs.ego.lane_id or "")
+    if here is None or not scene.ego_candidates:
+        return False
+    cand = plan.ego_index if plan.ego_index is not None else scene.route_candidate_id
+    for lid in scene.ego_candidates[cand].lane_ids:
+        ln = scene.lanes.get(lid)
+        if ln is not None and ln.edge_id == here.edge_id and ln.id != here.id:
+            return True
+    return False
+
+
+def _junction_ahead(inp: RuleInputs) -> bool:
+    """Inside a junction, or a signalized stop line or a roundabout entry on the route
+    within ``junction_attention_m``: the light is unknown to the rules, and a fast
+    approach to a roundabout turns its gap check into a commit or a long wait."""
+    scene = inp.scene
+    man = next_maneuver(scene.obs, scene.lanes, max_distance_m=inp.cfg.junction_attention_m)
+    if man is None:
+        return False
+    ring = scene.lanes.get(man.link.to_lane)
+    if man.inside_junction or (ring is not None and ring.roundabout):
+        return True
+    return any(sl.lane_id == man.approach_lane_id and sl.signalized
+               for sl in scene.obs.map.stop_lines)
+
+
+def close_follower(inp: RuleInputs) -> Optional[AgentView]:
+    """A vehicle behind in the ego's lane closer than ``FOLLOWER_HEADWAY_S`` at its speed
+    (at least ``STANDOFF_M``): braking in front of it invites a rear-end collision."""
+    for v in inp.scene.agents:
+        k = v.kin
+        if k.longitudinal_m >= 0.0 or abs(k.heading_rel_rad) > ALONG_RAD \
+                or abs(k.lateral_m) > 1.8:
+            continue
+        if k.gap_m < max(STANDOFF_M, FOLLOWER_HEADWAY_S * v.agent.v_mps):
+            return v
+    return None
 
 
 def _follow(inp: RuleInputs, plan: Plan, close: AgentView) -> None:
