@@ -45,10 +45,10 @@ def in_process(tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, int]
     return rows
 
 
-_OPEN = {("none", 3)}
-"""The baseline leaves its route on usi seed 3 (5.0 m, onto the east arm) since the MPC's
-crossing rules of 2026-12-03 (issue 23): it yields inside the junction and its re-entry
-to the route goes wide (docs/RESULTS.md, "Latency, second round", mechanism 2). Open."""
+_OPEN: set[tuple[str, int]] = set()
+"""Graph runs expected to fail (strict xfail). Empty since the third round of issue 23
+(2026-12-03): the baseline had left its route on usi 3 (re-entry after a yield inside the
+junction) and reaches now."""
 
 
 @pytest.mark.parametrize("planner,seed", [
