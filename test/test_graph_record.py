@@ -46,8 +46,12 @@ def test_record_writes_a_readable_bag_of_every_topic(tmp_path: Path, domain_id: 
     assert counts["/lmpc/control"] >= steps
     assert counts["/lmpc/decision"] == run.summary["decisions"]
     assert counts["/lmpc/map"] == 1
-    for topic in ("/lmpc/agents", "/lmpc/signals", "/lmpc/planner/status", "/lmpc/mpc/predicted"):
+    for topic in ("/lmpc/agents", "/lmpc/signals", "/lmpc/planner/status"):
         assert counts.get(topic, 0) >= steps, topic
+    # The MPC's mirrors are built only while someone subscribes (issue 19): until its
+    # publisher has discovered the recorder (a CI run: 5 steps of 349, ~40 ms of a sync run)
+    # there is nothing to record, and transient-local QoS cannot replay what was never sent.
+    assert counts.get("/lmpc/mpc/predicted", 0) >= 0.9 * steps, counts
 
 
 def test_the_recorder_gets_what_a_producer_sent_before_it_matched(
