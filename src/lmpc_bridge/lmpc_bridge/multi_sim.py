@@ -432,7 +432,11 @@ class MultiSumoSim:
         present = set(t.vehicle.getIDList())
         for ego in self.egos.values():
             if not ego.running and ego.ego_id in present:
-                t.vehicle.remove(ego.ego_id)  # through (or wrecked): out of the episode
+                # through (or wrecked): out of the episode (its subscriptions first: libsumo
+                # fails the next step on a subscription of a vehicle it no longer knows)
+                for domain in (tc.CMD_GET_VEHICLE_VARIABLE, tc.CMD_GET_PERSON_VARIABLE):
+                    t.vehicle.unsubscribeContext(ego.ego_id, domain, self._range_m)
+                t.vehicle.remove(ego.ego_id)
         running = [e for e in self.egos.values() if e.running]
         if not running:
             return

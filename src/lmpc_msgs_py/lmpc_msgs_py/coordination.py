@@ -48,11 +48,18 @@ class ConflictView(_Part):
     conflict_id: Ident
     """The same for every ego that meets it (e.g. the narrow section's edge pair)."""
     kind: ConflictKind
+    via: Ident
+    """The conflict's lane the ego takes (its direction through a narrow section)."""
     dist_to_entry_m: Dist
     """0 once the ego's front is at or past the entry."""
     dist_to_exit_m: Dist
     """0 once the ego's rear has left the conflict."""
+    dist_to_hold_m: Dist = 0.0
+    """To where it waits when it yields (before the junction that leads into the
+    conflict); 0 once past it."""
     inside: bool = False
+    oncoming: tuple[Ident, ...] = Field(default=(), max_length=100)
+    """Vehicles the ego sees in the conflict or about to enter it against its direction."""
 
     @field_validator("dist_to_exit_m")
     @classmethod

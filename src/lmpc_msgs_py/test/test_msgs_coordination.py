@@ -15,7 +15,7 @@ def status(**over: object) -> EgoStatus:
     fields: dict[str, object] = dict(
         stamp_s=3.0, seq=30, ego_id="ego_1", route_index=1, dist_to_target_m=120.0,
         v_mps=7.5, intent="approach", decision_summary="rules: accel 3, attend ego_2",
-        conflict=ConflictView(conflict_id="narrow:B2C|C2B", kind="narrow",
+        conflict=ConflictView(conflict_id="narrow:B2C|C2B", kind="narrow", via="AB_0",
                               dist_to_entry_m=20.0, dist_to_exit_m=85.0))
     fields.update(over)
     return EgoStatus(**fields)  # type: ignore[arg-type]
