@@ -14,15 +14,11 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Any, Optional
 
-if __package__ in (None, ""):
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from scripts.methods import make_planner  # noqa: E402
+from lmpc_scripts.methods import make_planner
 
 MULTI_FAMILIES = ("narrow",)
 """Families whose scenes carry several egos (``params["egos"]``)."""
@@ -30,7 +26,8 @@ MODES = ("none", "distributed", "central")
 ROW_FIELDS = (
     "family", "seed", "method", "coordination", "egos", "reached", "ego_collisions",
     "other_collisions", "deadlock", "timeouts", "clear_s", "joint_oc", "end_s",
-    "directives", "directives_refused", "hold_steps", "wall_s", "per_ego", "detail")
+    "directives", "directives_refused", "hold_steps", "silent_steps", "wall_s", "per_ego",
+    "detail")
 
 _SOLVERS: list[Any] = []
 
@@ -48,7 +45,8 @@ def _solver(k: int) -> Any:
 
 
 def wire(method: str, ego_ids: list[str], mode: str, *, coordinator_backend: str = "rules",
-         coordinator: Any = None) -> tuple[dict[str, Any], Any]:
+         coordinator: Any = None, on_silence: str = "distributed"
+         ) -> tuple[dict[str, Any], Any]:
     """Per-ego wiring (controller, planner) and the coordination of one episode."""
     from lmpc_bridge.multi_episode import EgoWiring
     from lmpc_llm_planner.coordination import (
@@ -70,7 +68,8 @@ def wire(method: str, ego_ids: list[str], mode: str, *, coordinator_backend: str
         egos[eid] = EgoWiring(controller=controller, planner=planner)
     if mode == "central" and coordinator is None:
         coordinator = CoordinatorCore(make_coordinator_backend(coordinator_backend))
-    coordination = Coordination(mode, ego_ids, load_decision_space(), coordinator=coordinator)
+    coordination = Coordination(mode, ego_ids, load_decision_space(), coordinator=coordinator,
+                                on_silence=on_silence)
     return egos, coordination
 
 
@@ -89,20 +88,23 @@ def result_row(result: Any, method: str, mode: str, wall_s: float) -> dict[str, 
         "joint_oc": round(result.joint_oc, 4), "end_s": round(result.end_s, 3),
         "directives": st.get("directives", 0),
         "directives_refused": st.get("directives_refused", 0),
-        "hold_steps": st.get("hold_steps", 0), "wall_s": round(wall_s, 2),
+        "hold_steps": st.get("hold_steps", 0), "silent_steps": st.get("silent_steps", 0),
+        "wall_s": round(wall_s, 2),
         "per_ego": json.dumps(per_ego, sort_keys=True),
         "detail": "; ".join(f"{e.ego_id}: {e.detail}" for e in result.egos if e.detail)[:500]}
 
 
 def run_one(family: str, seed: int, method: str, mode: str, work_dir: Path, *,
-            coordinator: Any = None, max_time_s: float = 120.0) -> tuple[Any, dict[str, Any]]:
+            coordinator: Any = None, on_silence: str = "distributed",
+            max_time_s: float = 120.0) -> tuple[Any, dict[str, Any]]:
     from lmpc_bridge.multi_episode import run_multi_episode
     from lmpc_bridge.multi_scene import ego_specs
     from lmpc_bridge.multi_sim import MultiSumoSim
     from lmpc_bridge.scenarios import build_scene
 
     ids = [s.ego_id for s in ego_specs(build_scene(family, seed, work_dir=work_dir))]
-    egos, coordination = wire(method, ids, mode, coordinator=coordinator)
+    egos, coordination = wire(method, ids, mode, coordinator=coordinator,
+                              on_silence=on_silence)
     started = time.perf_counter()
     result = run_multi_episode(MultiSumoSim(work_dir=work_dir), family=family, seed=seed,
                                egos=egos, coordination=coordination, max_time_s=max_time_s)

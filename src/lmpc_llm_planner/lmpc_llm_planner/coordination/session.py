@@ -8,10 +8,17 @@ calls each step, before the egos' controllers and planners:
   other ego (through the codec, as on a shared topic), and each ego resolves the conflict
   with the fixed rule set (``coordination.rules``) and its own memory; no central node;
 - ``central``: the statuses go to a :class:`CoordinatorCore` whose directives (one per
-  ego in a conflict, every ``period_s``, valid ``ttl_s``) the egos follow; a silent
-  coordinator lets the directives run out and each ego is on its own planner again.
+  ego in a conflict, every ``period_s``, valid ``ttl_s``) the egos follow. When the
+  coordinator goes silent (crashed, hung: no directive in force for an ego that sees a
+  conflict), its directives run out and the ego falls back to ``on_silence``:
+  ``distributed`` (default: the egos still exchange statuses and use the rule set among
+  themselves) or ``none`` (its own planner alone; on development seed 101 of ``narrow``
+  two egos on their own planners collide, so this is not the default). Steps on the
+  fallback are counted (``silent_steps``) and the first one logged.
 """
 from __future__ import annotations
+
+import logging
 
 from collections.abc import Iterable
 from typing import Optional
@@ -26,6 +33,7 @@ from lmpc_llm_planner.coordination.coordinator import CoordinatorCore
 from lmpc_llm_planner.coordination.ego import Command, EgoCoordination
 from lmpc_llm_planner.coordination.rules import resolve
 
+_LOG = logging.getLogger(__name__)
 MODES = ("none", "distributed", "central")
 DISTRIBUTED_TTL_S = 0.5
 """A distributed verdict is renewed every step; it lapses this long after the last."""
@@ -35,13 +43,18 @@ class Coordination:
     """See the module docstring."""
 
     def __init__(self, mode: str, ego_ids: Iterable[str], space: DecisionSpace, *,
-                 coordinator: Optional[CoordinatorCore] = None) -> None:
+                 coordinator: Optional[CoordinatorCore] = None,
+                 on_silence: str = "distributed") -> None:
         if mode not in MODES:
             raise ValueError(f"unknown coordination mode {mode!r}; choose from "
                              f"{', '.join(MODES)}")
         if mode == "central" and coordinator is None:
             raise ValueError("coordination 'central' needs a coordinator")
+        if on_silence not in ("distributed", "none"):
+            raise ValueError(f"on_silence {on_silence!r}: choose distributed or none")
         self.mode = mode
+        self.on_silence = on_silence
+        self.silent_steps = 0
         self.egos = {eid: EgoCoordination(eid, space) for eid in ego_ids}
         self.coordinator = coordinator if mode == "central" else None
         self._memories: dict[str, dict[str, str]] = {eid: {} for eid in self.egos}
@@ -57,17 +70,23 @@ class Coordination:
         self.statuses_sent += len(statuses)
         if self.mode == "distributed":
             for eid in obs:
-                v = resolve(statuses, self._memories[eid]).get(eid)
-                self.egos[eid].follow(None if v is None else Command(
-                    command=v.command, conflict_id=v.conflict_id, speed_band=None,
-                    deadline_s=now_s + DISTRIBUTED_TTL_S, source="distributed",
-                    directive_id=f"dist-{eid}-{v.command}"))
+                self._distributed(eid, statuses, now_s)
         else:
             assert self.coordinator is not None
             for d in self.coordinator.on_statuses(statuses, now_s):
                 self.egos[d.ego_id].follow(Command(
                     command=d.command, conflict_id=d.conflict_id, speed_band=d.speed_band,
                     deadline_s=d.deadline_s, source=d.source, directive_id=d.directive_id))
+            for eid in obs:
+                st = next(s for s in statuses if s.ego_id == eid)
+                if self.egos[eid].in_force(now_s) is None and st.conflict is not None:
+                    if not self.silent_steps:
+                        _LOG.warning("%s: no directive in force at t=%.1f s (coordinator "
+                                     "silent?): falling back to %s", eid, now_s,
+                                     self.on_silence)
+                    self.silent_steps += 1
+                    if self.on_silence == "distributed":
+                        self._distributed(eid, statuses, now_s)
         out = {}
         for eid, o in obs.items():
             cmd = self.egos[eid].in_force(now_s)
@@ -75,6 +94,13 @@ class Coordination:
                 self.yield_steps[eid] += 1
             out[eid] = self.egos[eid].apply(o)
         return out
+
+    def _distributed(self, eid: str, statuses: list[EgoStatus], now_s: float) -> None:
+        v = resolve(statuses, self._memories[eid]).get(eid)
+        self.egos[eid].follow(None if v is None else Command(
+            command=v.command, conflict_id=v.conflict_id, speed_band=None,
+            deadline_s=now_s + DISTRIBUTED_TTL_S, source="distributed",
+            directive_id=f"dist-{eid}-{v.command}"))
 
     def shape(self, ego_id: str, decision: Optional[Decision],
               obs: Observation) -> Optional[Decision]:
@@ -88,5 +114,6 @@ class Coordination:
         return {"statuses": self.statuses_sent,
                 "directives": 0 if c is None else c.issued,
                 "directives_refused": 0 if c is None else c.refused,
+                "silent_steps": self.silent_steps,
                 "hold_steps": sum(e.holds for e in self.egos.values()),
                 "shaped_decisions": sum(e.shaped for e in self.egos.values())}
