@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import tempfile
 import time
 from pathlib import Path
 from typing import Any, Optional
@@ -117,7 +118,7 @@ def run_multi_scenes(families: list[str], seeds: list[int], methods: list[str],
     (written as they come)."""
     out.mkdir(parents=True, exist_ok=True)
     path = out / "multi_results.csv"
-    work_dir = out / "scenes"
+    work_dir = Path(tempfile.mkdtemp(prefix="lmpc-multi-"))  # scene files stay out of ``out``
     with path.open("w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=ROW_FIELDS)
         writer.writeheader()
@@ -138,7 +139,38 @@ def run_multi_scenes(families: list[str], seeds: list[int], methods: list[str],
                               f"/{row.get('egos')} ego-coll {row.get('ego_collisions')} "
                               f"deadlock {row.get('deadlock')} clear {row.get('clear_s')} "
                               f"{row.get('detail', '')[:120]}", flush=True)
+    table = multi_table_md(path)
+    (out / "multi_table.md").write_text(table)
+    print(table)
     return path
+
+
+def multi_table_md(path: Path) -> str:
+    """Per (family, method, coordination): the joint figures of ``multi_results.csv``."""
+    with path.open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    groups: dict[tuple[str, str, str], list[dict[str, str]]] = {}
+    for r in rows:
+        groups.setdefault((r["family"], r["method"], r["coordination"]), []).append(r)
+    lines = ["| family | method | coordination | scenes | all through | ego-ego collisions "
+             "| collisions with others | deadlocks | egos timed out | errors "
+             "| time to clear, s (mean, all through) | joint O.C. (mean) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for (family, method, mode), rs in groups.items():
+        ok = [r for r in rs if r.get("reached") not in (None, "")]
+        errors = len(rs) - len(ok)
+        through = [r for r in ok if r["reached"] == r["egos"]]
+        clear = [float(r["clear_s"]) for r in through if r["clear_s"]]
+        occ = [float(r["joint_oc"]) for r in ok]
+        lines.append(
+            f"| {family} | {method} | {mode} | {len(rs)} | {len(through)} "
+            f"| {sum(int(r['ego_collisions']) for r in ok)} "
+            f"| {sum(int(r['other_collisions']) for r in ok)} "
+            f"| {sum(int(r['deadlock']) for r in ok)} "
+            f"| {sum(int(r['timeouts']) for r in ok)} | {errors} "
+            f"| {sum(clear) / len(clear) if clear else float('nan'):.1f} "
+            f"| {sum(occ) / len(occ) if occ else float('nan'):.1f} |")
+    return "\n".join(lines) + "\n"
 
 
 def _seeds(text: str) -> list[int]:
