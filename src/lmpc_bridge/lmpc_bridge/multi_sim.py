@@ -14,7 +14,10 @@ Differences from ``SumoSim`` (documented in docs/MULTI.md):
 - **deadlock**: when no running ego has moved (speed < ``DEADLOCK_SPEED_MPS``) for
   ``DEADLOCK_S`` while none has reached its target, the episode ends; the running egos'
   outcome is ``timeout`` with detail ``deadlock`` (their time counts the limit);
-- no route watch (``off_route``) and no branching (``save_state``);
+- SUMO places an ego on the closest lane of its ROUTE (``moveToXY`` ``keepRoute=1``, not
+  2): in the taper before a one-lane section the other direction's lane lies 1.6 m away
+  and SUMO put the ego there (its drivers then did not see it; narrow seed 6). The
+  bridge's own pose stays exact; no route watch (``off_route``), no ``save_state``;
 - the affected vehicles of ``ineff`` are the ego's SUMO follower and the vehicles whose
   leader it is (no junction-foe rule: the families have no junction conflicts but the
   shared section, which the egos resolve among themselves);
@@ -161,7 +164,10 @@ class MultiSumoSim:
         t.simulationStep()
         missing = [s for s in specs if s.ego_id not in t.vehicle.getIDList()]
         for spec in missing:  # as SumoSim: insert standing when SUMO refuses the speed
-            t.vehicle.remove(spec.ego_id)
+            try:  # (SUMO may have dropped it already: "will not be able to depart")
+                t.vehicle.remove(spec.ego_id)
+            except Exception:  # noqa: BLE001 - libsumo raises its own types
+                pass
             self._add(spec, 0.0)
         if missing:
             t.simulationStep()
@@ -322,7 +328,7 @@ class MultiSumoSim:
             try:
                 t.vehicle.moveToXY(eid, "", -1, p.x_m + half * math.cos(p.yaw_rad),
                                    p.y_m + half * math.sin(p.yaw_rad),
-                                   sumo_angle_from_yaw(p.yaw_rad), keepRoute=2)
+                                   sumo_angle_from_yaw(p.yaw_rad), keepRoute=1)
             except Exception as exc:  # noqa: BLE001
                 ego.outcome, ego.detail = "error", f"SUMO failed to move {eid}: {exc}"
         try:

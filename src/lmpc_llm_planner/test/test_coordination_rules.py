@@ -107,3 +107,15 @@ def test_coordination_refuses_bad_modes() -> None:
         Coordination("chaos", ["ego_1"], load_decision_space())
     with pytest.raises(ValueError, match="needs a coordinator"):
         Coordination("central", ["ego_1"], load_decision_space())
+
+
+def test_a_car_following_the_other_ego_through_holds_the_section() -> None:
+    # ego_2 has left the section; bg0 behind it is inside (ego_1 cannot see that far)
+    through = EgoStatus(stamp_s=1.0, seq=1, ego_id="ego_2", dist_to_target_m=40.0, v_mps=9.0,
+                        intent="through", conflict=ConflictView(
+                            conflict_id=CID, kind="narrow", via="BA_0", dist_to_entry_m=0.0,
+                            dist_to_exit_m=0.0, inbound=("bg0",)))
+    assert commands([st("ego_1", "AB_0", 26.0, 0.0), through]) == {"ego_1": "yield"}
+    assert commands([st("ego_1", "AB_0", 26.0, 0.0), through.model_copy(
+        update={"conflict": through.conflict.model_copy(update={"inbound": ()})})]) == \
+        {"ego_1": "proceed"}

@@ -60,6 +60,9 @@ class ConflictView(_Part):
     inside: bool = False
     oncoming: tuple[Ident, ...] = Field(default=(), max_length=100)
     """Vehicles the ego sees in the conflict or about to enter it against its direction."""
+    inbound: tuple[Ident, ...] = Field(default=(), max_length=100)
+    """Vehicles the ego sees in the conflict or about to enter it in ITS direction (e.g.
+    a car following it): the other direction must let them through too."""
 
     @field_validator("dist_to_exit_m")
     @classmethod

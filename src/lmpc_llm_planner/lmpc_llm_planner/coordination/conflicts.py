@@ -29,6 +29,8 @@ LOOKAHEAD_M = 150.0
 ONCOMING_WINDOW_M = 30.0
 """A vehicle this close to the section's far entry, moving, counts as oncoming."""
 ONCOMING_MIN_SPEED_MPS = 0.5
+LOOKBACK_M = 100.0
+"""A passed section is reported (with its ``inbound`` vehicles) up to this far behind."""
 
 
 @dataclass(frozen=True)
@@ -43,6 +45,8 @@ class Section:
     """Route index of the first lane of the junction(s) before the section."""
     feeders: tuple[str, ...]
     """Lanes that lead into ``partner`` (the other direction's approach and junction)."""
+    own_junction: tuple[str, ...] = ()
+    """The junction lanes that lead into ``via`` (the ego's own taper)."""
 
 
 def _close(a: tuple[float, float], b: tuple[float, float]) -> bool:
@@ -67,9 +71,10 @@ def shared_sections(mp: MapSnapshot) -> tuple[Section, ...]:
                         and lanes[mp.ego_route[hold - 1]].internal:
                     hold -= 1
                 feeders = _feeders(mp, other.id)
+                own = tuple(f for f in _feeders(mp, lid) if lanes[f].internal)
                 cid = "narrow:" + "|".join(sorted((lane.edge_id, other.edge_id)))
                 out.append(Section(conflict_id=cid, via=lid, partner=other.id, route_index=i,
-                                   hold_index=hold, feeders=feeders))
+                                   hold_index=hold, feeders=feeders, own_junction=own))
                 break
     return tuple(out)
 
@@ -109,14 +114,29 @@ def conflict_view(obs: Observation, section: Section,
     front = starts[min(ego.route_index, len(starts) - 1)] + ego.lane_pos_m
     entry = starts[section.route_index] - front
     exit_rear = starts[section.route_index + 1] - (front - ego.length_m)
-    if exit_rear <= 0.0 or entry > LOOKAHEAD_M:
+    if entry > LOOKAHEAD_M:
         return None
+    if exit_rear <= 0.0:
+        # passed: still reported while vehicles follow it through (``inbound``), so the
+        # other direction waits for them too
+        seen = inbound(obs, section)
+        if not seen or exit_rear < -LOOKBACK_M:
+            return None
+        return ConflictView(conflict_id=section.conflict_id, kind="narrow", via=section.via,
+                            dist_to_entry_m=0.0, dist_to_exit_m=0.0, inbound=seen)
     hold = starts[section.hold_index] - HOLD_MARGIN_M - front
     return ConflictView(
         conflict_id=section.conflict_id, kind="narrow", via=section.via,
         dist_to_entry_m=max(entry, 0.0), dist_to_exit_m=max(exit_rear, max(entry, 0.0)),
         dist_to_hold_m=max(hold, 0.0), inside=entry <= 0.0,
-        oncoming=oncoming(obs, section))
+        oncoming=oncoming(obs, section), inbound=inbound(obs, section))
+
+
+def inbound(obs: Observation, section: Section) -> tuple[str, ...]:
+    """Vehicles in the section or in the junction leading into it in the ego's direction
+    (they can no longer stop for the other direction)."""
+    lanes = {section.via, *section.own_junction}
+    return tuple(sorted(a.id for a in obs.agents.agents if a.lane_id in lanes))[:100]
 
 
 def oncoming(obs: Observation, section: Section) -> tuple[str, ...]:

@@ -96,6 +96,8 @@ class EgoCoordination:
             intent = "done"
         elif view is None:
             intent = "cruise"
+        elif view.dist_to_exit_m <= 0.0:  # type: ignore[attr-defined]
+            intent = "through"
         elif view.inside:  # type: ignore[attr-defined]
             intent = "pass"
         elif cmd is not None and cmd.command == "yield":
@@ -122,7 +124,8 @@ class EgoCoordination:
         if cmd is None or cmd.command != "yield":
             return obs
         sec, view = self._ahead(obs)
-        if sec is None or sec.conflict_id != cmd.conflict_id:
+        if sec is None or sec.conflict_id != cmd.conflict_id \
+                or view.dist_to_exit_m <= 0.0:  # type: ignore[attr-defined]
             return obs
         status = EgoStatus(stamp_s=obs.stamp_s, seq=0, ego_id=self.ego_id,
                            dist_to_target_m=obs.ego.dist_to_target_m, v_mps=obs.ego.v_mps,

@@ -13,7 +13,9 @@ and are within ``ENGAGE_M`` of its entry:
 4. an ego proceeds when it takes that direction and no ego of the other direction is
    ranked before it; every other ego yields (priority = its rank);
 5. an ego that is not committed also yields while a vehicle that is not an ego comes
-   the other way (``ConflictView.oncoming``): nobody coordinates with it.
+   the other way: seen by the ego itself (``ConflictView.oncoming``) or reported by an
+   ego of the other direction as following it through (``ConflictView.inbound``, also
+   after that ego left the conflict); nobody coordinates with such a vehicle.
 """
 from __future__ import annotations
 
@@ -48,8 +50,12 @@ def resolve(statuses: Sequence[EgoStatus], memory: dict[str, str]) -> dict[str, 
     (conflict id -> the direction holding it) is updated in place."""
     ego_ids = {st.ego_id for st in statuses}
     by_conflict: dict[str, list[EgoStatus]] = {}
+    inbound: dict[tuple[str, str], set[str]] = {}  # (conflict, direction) -> non-egos
     for st in statuses:
         c = st.conflict
+        if c is not None:
+            inbound.setdefault((c.conflict_id, c.via), set()).update(
+                a for a in c.inbound if a not in ego_ids)
         if c is None or st.intent in ("done", "through") or c.dist_to_exit_m <= 0.0 \
                 or c.dist_to_entry_m > ENGAGE_M:
             continue
@@ -71,7 +77,8 @@ def resolve(statuses: Sequence[EgoStatus], memory: dict[str, str]) -> dict[str, 
         for rank, st in enumerate(order):
             c = st.conflict
             assert c is not None
-            foreign = [a for a in c.oncoming if a not in ego_ids]
+            foreign = sorted({a for a in c.oncoming if a not in ego_ids}.union(
+                *(ids for (k, via), ids in inbound.items() if k == cid and via != c.via)))
             if c.via != held:
                 opposite_seen = True
                 out[st.ego_id] = Verdict(st.ego_id, cid, "yield", rank,
