@@ -81,6 +81,8 @@ class CoordinatorCore:
         self.issued = 0
         self.refused = 0
         self.refusals: list[str] = []
+        self.last_round: list[Directive] = []
+        """The directives of the newest round (empty: the backend said nothing)."""
 
     def due(self, now_s: float) -> bool:
         return self._t_last is None or now_s >= self._t_last + self.period_s - 1e-6
@@ -91,7 +93,8 @@ class CoordinatorCore:
             return []
         self._t_last = now_s
         known = {st.ego_id for st in statuses}
-        out = []
+        out: list[Directive] = []
+        self.last_round = out
         for v in self.backend.verdicts(statuses, now_s):
             self._seq += 1
             band = SpeedBand(min_mps=0.0, max_mps=0.0) if v.command == "yield" else \

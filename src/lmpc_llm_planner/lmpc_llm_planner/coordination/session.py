@@ -9,8 +9,8 @@ calls each step, before the egos' controllers and planners:
   with the fixed rule set (``coordination.rules``) and its own memory; no central node;
 - ``central``: the statuses go to a :class:`CoordinatorCore` whose directives (one per
   ego in a conflict, every ``period_s``, valid ``ttl_s``) the egos follow. When the
-  coordinator goes silent (crashed, hung: no directive in force for an ego that sees a
-  conflict), its directives run out and the ego falls back to ``on_silence``:
+  coordinator goes silent (its newest round had no directive, or none to any ego for
+  ``ttl_s``: crashed, hung), the directives run out and the ego falls back to ``on_silence``:
   ``distributed`` (default: the egos still exchange statuses and use the rule set among
   themselves) or ``none`` (its own planner alone; on development seed 101 of ``narrow``
   two egos on their own planners collide, so this is not the default). Steps on the
@@ -55,6 +55,9 @@ class Coordination:
         self.mode = mode
         self.on_silence = on_silence
         self.silent_steps = 0
+        self._last_directive_s = 0.0
+        """Sim time of the coordinator's last directive (to any ego); silent: none for
+        the directives' ``ttl_s``."""
         self.egos = {eid: EgoCoordination(eid, space) for eid in ego_ids}
         self.coordinator = coordinator if mode == "central" else None
         self._memories: dict[str, dict[str, str]] = {eid: {} for eid in self.egos}
@@ -74,12 +77,16 @@ class Coordination:
         else:
             assert self.coordinator is not None
             for d in self.coordinator.on_statuses(statuses, now_s):
+                self._last_directive_s = now_s
                 self.egos[d.ego_id].follow(Command(
                     command=d.command, conflict_id=d.conflict_id, speed_band=d.speed_band,
                     deadline_s=d.deadline_s, source=d.source, directive_id=d.directive_id))
+            silent = not self.coordinator.last_round \
+                or now_s - self._last_directive_s >= self.coordinator.ttl_s - 1e-9
             for eid in obs:
                 st = next(s for s in statuses if s.ego_id == eid)
-                if self.egos[eid].in_force(now_s) is None and st.conflict is not None:
+                if silent and self.egos[eid].in_force(now_s) is None \
+                        and st.intent in ("approach", "wait", "pass"):
                     if not self.silent_steps:
                         _LOG.warning("%s: no directive in force at t=%.1f s (coordinator "
                                      "silent?): falling back to %s", eid, now_s,
