@@ -175,6 +175,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if several:  # several egos per scene: their own loop and rows (docs/MULTI.md)
         modes = [m.strip() for m in args.coordination.split(",") if m.strip()]
         bad = [m for m in modes if m not in multi.MODES]
+        other = [m for m in methods if m not in multi.MULTI_METHODS]
+        if other:
+            ap.error(f"multi-ego families run {', '.join(multi.MULTI_METHODS)} only, not "
+                     f"{', '.join(other)} (docs/MULTI.md)")
         if bad or args.scene is not None:
             ap.error(f"--coordination {bad}: choose from {', '.join(multi.MODES)}" if bad
                      else "--scene does not combine with a multi-ego family")

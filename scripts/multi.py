@@ -24,6 +24,8 @@ from lmpc_scripts.methods import make_planner
 MULTI_FAMILIES = ("narrow",)
 """Families whose scenes carry several egos (``params["egos"]``)."""
 MODES = ("none", "distributed", "central")
+MULTI_METHODS = ("mpc", "lmpc-rules")
+"""The methods a multi-ego episode runs (per ego); the LLM backends are not wired yet."""
 ROW_FIELDS = (
     "family", "seed", "method", "coordination", "egos", "reached", "ego_collisions",
     "other_collisions", "deadlock", "timeouts", "clear_s", "joint_oc", "end_s",
@@ -59,7 +61,7 @@ def wire(method: str, ego_ids: list[str], mode: str, *, coordinator_backend: str
     from lmpc_mpc.controller import MpcController
     from lmpc_msgs_py.vocabulary import load_decision_space
 
-    if method not in ("mpc", "lmpc-rules"):
+    if method not in MULTI_METHODS:
         raise ValueError(f"multi-ego episodes run the methods mpc and lmpc-rules, not "
                          f"{method!r}")
     egos = {}

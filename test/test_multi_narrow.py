@@ -113,3 +113,19 @@ def test_multi_sim_observations_and_refusals(tmp_path: Path) -> None:
             sim.observe("ego_3")
     finally:
         sim.close()
+
+
+@pytest.mark.parametrize("extra,message", [
+    (["--methods", "lmpc-openai"], "multi-ego families run mpc, lmpc-rules only"),
+    (["--coordination", "none,chaos"], "--coordination ['chaos']"),
+])
+def test_benchmark_refuses_what_multi_ego_families_cannot_run(
+        extra: list[str], message: str, tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, str(REPO / "scripts" / "benchmark.py"),
+                          "--families", "narrow", "--seeds", "100", "--out", str(tmp_path),
+                          *extra], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2
+    assert message in out.stderr
