@@ -80,6 +80,18 @@ from lmpc_scripts.methods import (
 )
 
 
+def _multi_module() -> Any:
+    """``scripts/multi.py`` next to this file (the installed ``lmpc_scripts`` may be
+    another checkout's)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("lmpc_multi", Path(__file__).with_name(
+        "multi.py"))
+    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    spec.loader.exec_module(module)  # type: ignore[union-attr]
+    return module
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
@@ -134,6 +146,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     help="planner settings of the LLM methods (default: the packaged "
                          "planner.yaml; planner_local.yaml for lmpc-local), e.g. "
                          "planner_server.yaml for lmpc-openai against a local CPU server")
+    ap.add_argument("--coordination", default="none,distributed,central", metavar="MODES",
+                    help="multi-ego families (narrow): the coordination modes to run, "
+                         "none|distributed|central (docs/MULTI.md)")
     ap.add_argument("--decision-stats", type=Path, metavar="DIR",
                     help="only print the planner figures of a finished run folder "
                          "(DIR/decisions/*.jsonl) and write DIR/decisions.md")
@@ -155,6 +170,25 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         ap.error(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)}")
+    multi = _multi_module()
+    several = [f for f in families if f in multi.MULTI_FAMILIES]
+    if several:  # several egos per scene: their own loop and rows (docs/MULTI.md)
+        modes = [m.strip() for m in args.coordination.split(",") if m.strip()]
+        bad = [m for m in modes if m not in multi.MODES]
+        other = [m for m in methods if m not in multi.MULTI_METHODS]
+        if other:
+            ap.error(f"multi-ego families run {', '.join(multi.MULTI_METHODS)} only, not "
+                     f"{', '.join(other)} (docs/MULTI.md)")
+        if bad or args.scene is not None:
+            ap.error(f"--coordination {bad}: choose from {', '.join(multi.MODES)}" if bad
+                     else "--scene does not combine with a multi-ego family")
+        try:
+            print(multi.run_multi_scenes(several, list(args.seeds), methods, modes, args.out))
+        except ValueError as exc:
+            ap.error(str(exc))
+        families = [f for f in families if f not in several]
+        if not families:
+            return 0
     learned = [m for m in methods if m in ALGOS]
     if learned:
         if args.policy_dir is not None:  # the workers read it from the environment
