@@ -16,12 +16,16 @@ decision log in ``decisions/<family>-<seed>-<method>.jsonl``.
     benchmark.py --families si,lane --seeds 100-124 --methods lmpc-rules --instruction-set styles
     benchmark.py --families eoa --methods lmpc-replay --replay-from runs/bench_local  # repeat
     benchmark.py --families si --methods lmpc-rules --decision-latency 2.5  # a slow LLM
+    benchmark.py --families si --methods lmpc-rules --planning-period 5   # a rarer decision
     benchmark.py --families usi --executor ray   # Ray tasks: local, or $RAY_ADDRESS
 
 ``--decision-latency S`` simulates a planner whose decisions take effect S seconds (sim
 time) after the observation they used, whatever the backend (the rules reasoner too);
 emergency decisions get ``--emergency-latency`` (default min(S, 1.5 s), the paper's
-short emergency path). Both are recorded per row and in summary.json.
+short emergency path). Both are recorded per row and in summary.json. ``--planning-period S``
+runs the LLM methods at another cadence (``lmpc_llm_planner.config.cadence_config``: the
+period, the rules' ``replan_s`` and the TTL; the config used is kept as
+OUT/planner_config.yaml and the period in summary.json).
 
 ``--instruction-set styles`` runs every scene once per phrasing of the set (conservative,
 normal = no instruction, aggressive; ``lmpc_bridge.evaluation.style.INSTRUCTION_SETS``) and
@@ -49,6 +53,8 @@ import tempfile
 import time
 from pathlib import Path
 from typing import Any, Optional, Sequence
+
+import yaml
 
 from lmpc_bridge.evaluation.decisions import decision_stats, stats_md
 from lmpc_bridge.evaluation.executors import EXECUTORS, ExecutorError
@@ -130,6 +136,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--emergency-latency", type=float, metavar="S",
                     help="the latency of emergency decisions (default with "
                          "--decision-latency: min(S, 1.5), the paper's emergency path)")
+    ap.add_argument("--planning-period", type=float, metavar="S",
+                    help="the planner's period (sim time between normal decisions; "
+                         "default: the config's, 2.5 s): the LLM methods run with "
+                         "--planner-config (else the packaged planner.yaml) at this period, "
+                         "written to OUT/planner_config.yaml")
     ap.add_argument("--planner-config", type=Path, metavar="YAML",
                     help="planner settings of the LLM methods (default: the packaged "
                          "planner.yaml; planner_local.yaml for lmpc-local), e.g. "
@@ -172,6 +183,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             load_planner_config(args.planner_config)
         except PlannerConfigError as exc:
             ap.error(f"--planner-config: {exc}")
+    if args.planning_period is not None:
+        error = cadence_file(args, methods)
+        if error:
+            ap.error(error)
     replay: Optional[tuple[str, str]] = None
     if "lmpc-replay" in methods:
         if args.replay_from is None or not (args.replay_from / "decisions").is_dir():
@@ -347,6 +362,25 @@ def run_instruction_set(args: argparse.Namespace, jobs: list[tuple[str, str, int
     return 130 if interrupted else 0
 
 
+def cadence_file(args: argparse.Namespace, methods: list[str]) -> Optional[str]:
+    """``--planning-period``: write the LLM methods' planner config at that period to
+    OUT/planner_config.yaml and point ``args.planner_config`` at it; returns an error
+    message for a bad period or file, else None."""
+    from lmpc_llm_planner.config import PlannerConfigError, cadence_config
+
+    if args.planner_config is None and ({"lmpc-local", "lmpc-replay"} & set(methods)):
+        return ("--planning-period with lmpc-local / lmpc-replay: give the base config as "
+                "--planner-config (e.g. the packaged planner_local.yaml)")
+    try:
+        data = cadence_config(args.planning_period, args.planner_config)
+    except PlannerConfigError as exc:
+        return f"--planning-period: {exc}"
+    args.out.mkdir(parents=True, exist_ok=True)
+    args.planner_config = args.out / "planner_config.yaml"
+    args.planner_config.write_text(yaml.safe_dump(data, sort_keys=False))
+    return None
+
+
 def write_outputs(args: argparse.Namespace, rows: list[dict[str, Any]], log_dir: Path,
                   wall_s: float, partial: Optional[dict[str, int]], resumed: int = 0, *,
                   latency: tuple[Optional[float], Optional[float]] = (None, None)) -> None:
@@ -360,6 +394,7 @@ def write_outputs(args: argparse.Namespace, rows: list[dict[str, Any]], log_dir:
         {"families": summary, "planner": stats, "wall_time_s": round(wall_s, 1),
          "decision_latency_s": args.decision_latency,
          "emergency_latency_s": latency_cells("lmpc", latency)["emergency_latency_s"] or None,
+         "planning_period_s": args.planning_period,
          "workers": args.workers, "executor": args.executor, "seeds": args.seeds,
          "instruction": args.instruction,
          "partial": partial, "resumed_rows": resumed}, indent=2))
@@ -368,6 +403,8 @@ def write_outputs(args: argparse.Namespace, rows: list[dict[str, Any]], log_dir:
         cells = latency_cells("lmpc", latency)
         table = (f"Simulated decision latency {cells['latency_s'] or 'as configured'} s, "
                  f"emergency {cells['emergency_latency_s']} s.\n\n" + table)
+    if args.planning_period is not None:
+        table = f"Planning period {args.planning_period:g} s.\n\n" + table
     if partial is not None:
         table = (f"PARTIAL: interrupted after {partial['scenes_done']} of "
                  f"{partial['scenes_planned']} scenes.\n\n" + table)

@@ -102,3 +102,29 @@ def test_run_graph_passes_the_latencies_to_the_planner_node(tmp_path: Path) -> N
         with pytest.raises(SystemExit) as exc:
             run_graph.parse_args(argv)
         assert exc.value.code == 2
+
+
+def test_planning_period_spaces_the_normal_decisions(tmp_path: Path) -> None:
+    """``benchmark.py --planning-period 5`` (issue 16 item 6): the rules' normal decisions
+    come 5 s apart (emergencies in between as ever), the period is in summary.json and the
+    config used is kept in the run folder; a bad period is refused before any scene."""
+    out = tmp_path / "p5"
+    res = subprocess.run(
+        [sys.executable, str(REPO / "scripts" / "benchmark.py"), "--families", "usi",
+         "--seeds", "100", "--methods", "lmpc-rules", "--workers", "1",
+         "--planning-period", "5", "--out", str(out)],
+        capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    assert json.loads((out / "summary.json").read_text())["planning_period_s"] == 5.0
+    assert "period_s: 5.0" in (out / "planner_config.yaml").read_text()
+    stamps = [json.loads(line)["stamp_s"] for line in
+              (out / "decisions" / "usi-100-lmpc-rules.jsonl").read_text().splitlines()
+              if json.loads(line).get("mode") == "normal"]
+    assert len(stamps) >= 3, stamps
+    assert min(b - a for a, b in zip(stamps, stamps[1:])) >= 5.0 - 1e-6, stamps
+    bad = subprocess.run(
+        [sys.executable, str(REPO / "scripts" / "benchmark.py"), "--families", "usi",
+         "--seeds", "100", "--methods", "lmpc-rules", "--planning-period", "0",
+         "--out", str(tmp_path / "bad")], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "--planning-period: planning period must be within" \
+        in bad.stderr, bad.stderr[-500:]

@@ -284,6 +284,26 @@ def latency_overrides(decision_latency_s: Optional[float],
     return out
 
 
+def cadence_config(period_s: float, path: str | Path | None = None) -> dict[str, Any]:
+    """The planner config mapping of ``path`` (None = the packaged one) at another planning
+    period (``--planning-period`` of the benchmark): ``period_s``, the rules reasoner's
+    ``rules.replan_s`` (when it assumes it decides next: a stop at the line waits only
+    while stopping after the next decision is still comfortable) and ``ttl_s`` keeping the
+    file's slack over its period (packaged: 5 s = 2.5 s + 2.5 s), so a decision stays in
+    force until its successor. Raises :class:`PlannerConfigError` naming a period outside
+    (0, 60] s or a file that does not validate."""
+    if not (0.0 < period_s <= 60.0):
+        raise PlannerConfigError(f"planning period must be within (0, 60] s, got {period_s}")
+    file = Path(path) if path else DEFAULT_CONFIG_PATH
+    base = load_planner_config(file)
+    data = read_mapping(file, what="planner config", error=PlannerConfigError)
+    data["period_s"] = float(period_s)
+    data["ttl_s"] = round(max(base.ttl_s, period_s + base.ttl_s - base.period_s), 6)
+    data["rules"] = {**(data.get("rules") or {}), "replan_s": float(period_s)}
+    load_planner_config(file, overrides=data)  # the result validates, or the error names it
+    return data
+
+
 def load_planner_config(
     path: str | Path | None = None, *, overrides: Optional[dict[str, Any]] = None
 ) -> PlannerConfig:

@@ -214,6 +214,27 @@ def test_emergency_latency_is_honoured_separately(left_turn_map, obs_factory, pl
         cfg_with(planner_config, fixed_latency_s=5.0)
 
 
+def test_cadence_config_sets_the_period_the_rules_replan_and_keeps_the_ttl_slack(
+        tmp_path):
+    """``--planning-period`` (issue 16 item 6): the period, the rules' assumed time to the
+    next decision and a TTL keeping the file's slack over its period; other settings kept."""
+    from lmpc_llm_planner.config import (
+        PlannerConfigError, cadence_config, load_planner_config)
+
+    slow = cadence_config(5.0)
+    assert (slow["period_s"], slow["ttl_s"], slow["rules"]["replan_s"]) == (5.0, 7.5, 5.0)
+    packaged = load_planner_config()
+    assert slow["rules"]["safe_gap_s"] == packaged.rules.safe_gap_s
+    fast = load_planner_config(overrides=cadence_config(1.0))
+    assert (fast.period_s, fast.ttl_s, fast.rules.replan_s) == (1.0, 5.0, 1.0)
+    own = tmp_path / "own.yaml"
+    own.write_text("period_s: 2.0\nttl_s: 3.0\n")  # slack 1 s over its own period
+    assert cadence_config(4.0, own)["ttl_s"] == 5.0
+    for bad in (0.0, -1.0, 61.0):
+        with pytest.raises(PlannerConfigError, match="planning period must be within"):
+            cadence_config(bad)
+
+
 def test_decide_for_effect_time_predicts_by_the_expected_latency(
         left_turn_map, obs_factory, planner_config, mpc_config):
     """``decide_for_effect_time`` (issue 23; off by default): the scene is the observation
