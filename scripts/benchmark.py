@@ -75,6 +75,7 @@ from lmpc_bridge.evaluation.style import (
     style_table_md,
 )
 from lmpc_bridge.evaluation.table import aggregate, table2_md, table_md
+from lmpc_llm_planner.config import add_timing_args, timing_arg_error
 from lmpc_scripts.method_rl import ALGOS, POLICY_DIR_ENV, policy_path
 from lmpc_scripts.methods import (
     LLM_METHODS,
@@ -129,18 +130,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--replay-of", default="lmpc-local", metavar="METHOD",
                     help="lmpc-replay: the recorded method (its logs and planner settings; "
                          "default lmpc-local)")
-    ap.add_argument("--decision-latency", type=float, metavar="S",
-                    help="simulate a planner latency: every decision takes effect S s (sim "
-                         "time) after its observation, whatever the backend (rules too; "
-                         "ttl raised to S + period where needed); default: the config's")
-    ap.add_argument("--emergency-latency", type=float, metavar="S",
-                    help="the latency of emergency decisions (default with "
-                         "--decision-latency: min(S, 1.5), the paper's emergency path)")
-    ap.add_argument("--planning-period", type=float, metavar="S",
-                    help="the planner's period (sim time between normal decisions; "
-                         "default: the config's, 2.5 s): the LLM methods run with "
-                         "--planner-config (else the packaged planner.yaml) at this period, "
-                         "written to OUT/planner_config.yaml")
+    add_timing_args(ap)
     ap.add_argument("--planner-config", type=Path, metavar="YAML",
                     help="planner settings of the LLM methods (default: the packaged "
                          "planner.yaml; planner_local.yaml for lmpc-local), e.g. "
@@ -183,6 +173,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             load_planner_config(args.planner_config)
         except PlannerConfigError as exc:
             ap.error(f"--planner-config: {exc}")
+    timing_error = timing_arg_error(args)
+    if timing_error:
+        ap.error(timing_error)
     if args.planning_period is not None:
         error = cadence_file(args, methods)
         if error:
@@ -196,10 +189,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             ap.error(f"--replay-of {args.replay_of!r}: the method that recorded the logs, "
                      f"one of {', '.join(LLM_METHODS)}")
         replay = (str(args.replay_from.resolve()), args.replay_of)
-    for name in ("decision_latency", "emergency_latency"):
-        value = getattr(args, name)
-        if value is not None and not (0.0 <= value <= 600.0):
-            ap.error(f"--{name.replace('_', '-')} must be within 0..600 s, got {value}")
     latency = resolve_latency(args.decision_latency, args.emergency_latency)
     args.out.mkdir(parents=True, exist_ok=True)
     work_dir = tempfile.mkdtemp(prefix="lmpc-bench-")
