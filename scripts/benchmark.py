@@ -16,12 +16,16 @@ decision log in ``decisions/<family>-<seed>-<method>.jsonl``.
     benchmark.py --families si,lane --seeds 100-124 --methods lmpc-rules --instruction-set styles
     benchmark.py --families eoa --methods lmpc-replay --replay-from runs/bench_local  # repeat
     benchmark.py --families si --methods lmpc-rules --decision-latency 2.5  # a slow LLM
+    benchmark.py --families si --methods lmpc-rules --planning-period 5   # a rarer decision
     benchmark.py --families usi --executor ray   # Ray tasks: local, or $RAY_ADDRESS
 
 ``--decision-latency S`` simulates a planner whose decisions take effect S seconds (sim
 time) after the observation they used, whatever the backend (the rules reasoner too);
 emergency decisions get ``--emergency-latency`` (default min(S, 1.5 s), the paper's
-short emergency path). Both are recorded per row and in summary.json.
+short emergency path). Both are recorded per row and in summary.json. ``--planning-period S``
+runs the LLM methods at another cadence (``lmpc_llm_planner.config.cadence_config``: the
+period, the rules' ``replan_s`` and the TTL; the config used is kept as
+OUT/planner_config.yaml and the period in summary.json).
 
 ``--instruction-set styles`` runs every scene once per phrasing of the set (conservative,
 normal = no instruction, aggressive; ``lmpc_bridge.evaluation.style.INSTRUCTION_SETS``) and
@@ -50,6 +54,8 @@ import time
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
+import yaml
+
 from lmpc_bridge.evaluation.decisions import decision_stats, stats_md
 from lmpc_bridge.evaluation.executors import EXECUTORS, ExecutorError
 from lmpc_bridge.evaluation.replay import replay_check
@@ -69,6 +75,7 @@ from lmpc_bridge.evaluation.style import (
     style_table_md,
 )
 from lmpc_bridge.evaluation.table import aggregate, table2_md, table_md
+from lmpc_llm_planner.config import add_timing_args, timing_arg_error
 from lmpc_scripts.method_rl import ALGOS, POLICY_DIR_ENV, policy_path
 from lmpc_scripts.methods import (
     LLM_METHODS,
@@ -135,13 +142,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--replay-of", default="lmpc-local", metavar="METHOD",
                     help="lmpc-replay: the recorded method (its logs and planner settings; "
                          "default lmpc-local)")
-    ap.add_argument("--decision-latency", type=float, metavar="S",
-                    help="simulate a planner latency: every decision takes effect S s (sim "
-                         "time) after its observation, whatever the backend (rules too; "
-                         "ttl raised to S + period where needed); default: the config's")
-    ap.add_argument("--emergency-latency", type=float, metavar="S",
-                    help="the latency of emergency decisions (default with "
-                         "--decision-latency: min(S, 1.5), the paper's emergency path)")
+    add_timing_args(ap)
     ap.add_argument("--planner-config", type=Path, metavar="YAML",
                     help="planner settings of the LLM methods (default: the packaged "
                          "planner.yaml; planner_local.yaml for lmpc-local), e.g. "
@@ -206,6 +207,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             load_planner_config(args.planner_config)
         except PlannerConfigError as exc:
             ap.error(f"--planner-config: {exc}")
+    timing_error = timing_arg_error(args)
+    if timing_error:
+        ap.error(timing_error)
+    if args.planning_period is not None:
+        error = cadence_file(args, methods)
+        if error:
+            ap.error(error)
     replay: Optional[tuple[str, str]] = None
     if "lmpc-replay" in methods:
         if args.replay_from is None or not (args.replay_from / "decisions").is_dir():
@@ -215,10 +223,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             ap.error(f"--replay-of {args.replay_of!r}: the method that recorded the logs, "
                      f"one of {', '.join(LLM_METHODS)}")
         replay = (str(args.replay_from.resolve()), args.replay_of)
-    for name in ("decision_latency", "emergency_latency"):
-        value = getattr(args, name)
-        if value is not None and not (0.0 <= value <= 600.0):
-            ap.error(f"--{name.replace('_', '-')} must be within 0..600 s, got {value}")
     latency = resolve_latency(args.decision_latency, args.emergency_latency)
     args.out.mkdir(parents=True, exist_ok=True)
     work_dir = tempfile.mkdtemp(prefix="lmpc-bench-")
@@ -381,6 +385,25 @@ def run_instruction_set(args: argparse.Namespace, jobs: list[tuple[str, str, int
     return 130 if interrupted else 0
 
 
+def cadence_file(args: argparse.Namespace, methods: list[str]) -> Optional[str]:
+    """``--planning-period``: write the LLM methods' planner config at that period to
+    OUT/planner_config.yaml and point ``args.planner_config`` at it; returns an error
+    message for a bad period or file, else None."""
+    from lmpc_llm_planner.config import PlannerConfigError, cadence_config
+
+    if args.planner_config is None and ({"lmpc-local", "lmpc-replay"} & set(methods)):
+        return ("--planning-period with lmpc-local / lmpc-replay: give the base config as "
+                "--planner-config (e.g. the packaged planner_local.yaml)")
+    try:
+        data = cadence_config(args.planning_period, args.planner_config)
+    except PlannerConfigError as exc:
+        return f"--planning-period: {exc}"
+    args.out.mkdir(parents=True, exist_ok=True)
+    args.planner_config = args.out / "planner_config.yaml"
+    args.planner_config.write_text(yaml.safe_dump(data, sort_keys=False))
+    return None
+
+
 def write_outputs(args: argparse.Namespace, rows: list[dict[str, Any]], log_dir: Path,
                   wall_s: float, partial: Optional[dict[str, int]], resumed: int = 0, *,
                   latency: tuple[Optional[float], Optional[float]] = (None, None)) -> None:
@@ -394,6 +417,7 @@ def write_outputs(args: argparse.Namespace, rows: list[dict[str, Any]], log_dir:
         {"families": summary, "planner": stats, "wall_time_s": round(wall_s, 1),
          "decision_latency_s": args.decision_latency,
          "emergency_latency_s": latency_cells("lmpc", latency)["emergency_latency_s"] or None,
+         "planning_period_s": args.planning_period,
          "workers": args.workers, "executor": args.executor, "seeds": args.seeds,
          "instruction": args.instruction,
          "partial": partial, "resumed_rows": resumed}, indent=2))
@@ -402,6 +426,8 @@ def write_outputs(args: argparse.Namespace, rows: list[dict[str, Any]], log_dir:
         cells = latency_cells("lmpc", latency)
         table = (f"Simulated decision latency {cells['latency_s'] or 'as configured'} s, "
                  f"emergency {cells['emergency_latency_s']} s.\n\n" + table)
+    if args.planning_period is not None:
+        table = f"Planning period {args.planning_period:g} s.\n\n" + table
     if partial is not None:
         table = (f"PARTIAL: interrupted after {partial['scenes_done']} of "
                  f"{partial['scenes_planned']} scenes.\n\n" + table)

@@ -320,21 +320,24 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     ap.add_argument("--instruction", metavar="TEXT",
                     help="the user's instruction (e.g. 'drive conservatively'), published on "
                          "/lmpc/instruction before the episode starts")
-    ap.add_argument("--decision-latency", type=float, metavar="S",
-                    help="simulate a planner latency: every decision takes effect S s (sim "
-                         "time) after its observation, whatever the backend (rules too); "
-                         "default: the planner config's")
-    ap.add_argument("--emergency-latency", type=float, metavar="S",
-                    help="the latency of emergency decisions (default with "
-                         "--decision-latency: min(S, 1.5), the paper's emergency path)")
+    from lmpc_llm_planner.config import add_timing_args, timing_arg_error
+
+    add_timing_args(ap)
     args = ap.parse_args(argv)
-    for name in ("decision_latency", "emergency_latency"):
-        value = getattr(args, name)
-        if value is not None and args.planner in ("none", "mock"):
+    for name in ("decision_latency", "emergency_latency", "planning_period"):
+        if getattr(args, name) is not None and args.planner in ("none", "mock"):
             ap.error(f"--{name.replace('_', '-')} needs a planner backend (not "
                      f"--planner {args.planner})")
-        if value is not None and not (0.0 <= value <= 600.0):
-            ap.error(f"--{name.replace('_', '-')} must be within 0..600 s, got {value}")
+    timing_error = timing_arg_error(args)
+    if timing_error:
+        ap.error(timing_error)
+    if args.planning_period is not None and args.planner_config is not None:
+        from lmpc_llm_planner.config import PlannerConfigError, load_planner_config
+
+        try:  # the cadence config is written from it before the nodes start
+            load_planner_config(args.planner_config)
+        except PlannerConfigError as exc:
+            ap.error(f"--planner-config: {exc}")
     if args.planner == "mock" and args.mock_script is None:
         ap.error("--planner mock needs --mock-script FILE")
     if not 0 <= args.rt_priority <= 99:
@@ -381,6 +384,14 @@ def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, 
         elif args.planner == "local":
             from lmpc_llm_planner.config import LOCAL_CONFIG_PATH  # deadline the model can meet
             params["planner"]["config_file"] = str(LOCAL_CONFIG_PATH)
+        if args.planning_period is not None:  # that config at another cadence, kept
+            import yaml
+            from lmpc_llm_planner.config import cadence_config
+
+            cadence = run_dir / "planner_config.yaml"
+            cadence.write_text(yaml.safe_dump(cadence_config(
+                args.planning_period, params["planner"].get("config_file")), sort_keys=False))
+            params["planner"]["config_file"] = str(cadence)
     elif args.planner == "mock":
         params["mock_llm"] = {"use_sim_time": True, "script_file": str(args.mock_script.resolve())}
         if args.decision_space is not None:
@@ -646,6 +657,7 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
         "clock": args.clock,
         "decision_latency_s": args.decision_latency,
         "emergency_latency_s": effective_emergency_latency(args),
+        "planning_period_s": args.planning_period,
         "outcome": outcome,
         "detail": detail,
         "sim_time_s": sim_s,

@@ -97,8 +97,42 @@ def test_run_graph_passes_the_latencies_to_the_planner_node(tmp_path: Path) -> N
     assert run_graph.effective_emergency_latency(args) == 1.5
     args = run_graph.parse_args(["--decision-latency", "2.5", "--emergency-latency", "1"])
     assert run_graph.node_params(args, tmp_path)["planner"]["emergency_latency_s"] == 1.0
+    # --planning-period: the packaged config at that cadence, kept in the run folder
+    args = run_graph.parse_args(["--planning-period", "1"])
+    config = run_graph.node_params(args, tmp_path)["planner"]["config_file"]
+    assert config == str(tmp_path / "planner_config.yaml")
+    from lmpc_llm_planner.config import load_planner_config
+    assert load_planner_config(config).period_s == 1.0
     for argv in (["--planner", "none", "--decision-latency", "1"],
-                 ["--emergency-latency", "-1"]):
+                 ["--emergency-latency", "-1"], ["--planner", "mock", "--mock-script", "x",
+                                                 "--planning-period", "1"],
+                 ["--planning-period", "0"]):
         with pytest.raises(SystemExit) as exc:
             run_graph.parse_args(argv)
         assert exc.value.code == 2
+
+
+def test_planning_period_spaces_the_normal_decisions(tmp_path: Path) -> None:
+    """``benchmark.py --planning-period 5`` (issue 16 item 6): the rules' normal decisions
+    come 5 s apart (emergencies in between as ever), the period is in summary.json and the
+    config used is kept in the run folder; a bad period is refused before any scene."""
+    out = tmp_path / "p5"
+    res = subprocess.run(
+        [sys.executable, str(REPO / "scripts" / "benchmark.py"), "--families", "usi",
+         "--seeds", "100", "--methods", "lmpc-rules", "--workers", "1",
+         "--planning-period", "5", "--out", str(out)],
+        capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    assert json.loads((out / "summary.json").read_text())["planning_period_s"] == 5.0
+    assert "period_s: 5.0" in (out / "planner_config.yaml").read_text()
+    stamps = [json.loads(line)["stamp_s"] for line in
+              (out / "decisions" / "usi-100-lmpc-rules.jsonl").read_text().splitlines()
+              if json.loads(line).get("mode") == "normal"]
+    assert len(stamps) >= 3, stamps
+    assert min(b - a for a, b in zip(stamps, stamps[1:])) >= 5.0 - 1e-6, stamps
+    bad = subprocess.run(
+        [sys.executable, str(REPO / "scripts" / "benchmark.py"), "--families", "usi",
+         "--seeds", "100", "--methods", "lmpc-rules", "--planning-period", "0",
+         "--out", str(tmp_path / "bad")], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "--planning-period must be within" \
+        in bad.stderr, bad.stderr[-500:]

@@ -284,6 +284,54 @@ def latency_overrides(decision_latency_s: Optional[float],
     return out
 
 
+def add_timing_args(ap: Any) -> None:
+    """The planner-timing options of ``benchmark.py`` and ``run_graph.py`` (an argparse
+    parser): ``--decision-latency``, ``--emergency-latency``, ``--planning-period``."""
+    ap.add_argument("--decision-latency", type=float, metavar="S",
+                    help="simulate a planner latency: every decision takes effect S s (sim "
+                         "time) after its observation, whatever the backend (rules too; "
+                         "ttl raised to S + period where needed); default: the config's")
+    ap.add_argument("--emergency-latency", type=float, metavar="S",
+                    help="the latency of emergency decisions (default with "
+                         "--decision-latency: min(S, 1.5), the paper's emergency path)")
+    ap.add_argument("--planning-period", type=float, metavar="S",
+                    help="the planner's period (sim time between normal decisions; default: "
+                         "the config's, 2.5 s): the config (--planner-config, else the "
+                         "packaged one) at this period, its rules' replan_s and a TTL with "
+                         "the same slack, kept as planner_config.yaml in the run folder")
+
+
+def timing_arg_error(args: Any) -> Optional[str]:
+    """The first timing option (``add_timing_args``) out of range, as an error message."""
+    for name in ("decision_latency", "emergency_latency"):
+        value = getattr(args, name)
+        if value is not None and not (0.0 <= value <= 600.0):
+            return f"--{name.replace('_', '-')} must be within 0..600 s, got {value}"
+    if args.planning_period is not None and not (0.0 < args.planning_period <= 60.0):
+        return f"--planning-period must be within (0, 60] s, got {args.planning_period}"
+    return None
+
+
+def cadence_config(period_s: float, path: str | Path | None = None) -> dict[str, Any]:
+    """The planner config mapping of ``path`` (None = the packaged one) at another planning
+    period (``--planning-period`` of the benchmark): ``period_s``, the rules reasoner's
+    ``rules.replan_s`` (when it assumes it decides next: a stop at the line waits only
+    while stopping after the next decision is still comfortable) and ``ttl_s`` keeping the
+    file's slack over its period (packaged: 5 s = 2.5 s + 2.5 s), so a decision stays in
+    force until its successor. Raises :class:`PlannerConfigError` naming a period outside
+    (0, 60] s or a file that does not validate."""
+    if not (0.0 < period_s <= 60.0):
+        raise PlannerConfigError(f"planning period must be within (0, 60] s, got {period_s}")
+    file = Path(path) if path else DEFAULT_CONFIG_PATH
+    base = load_planner_config(file)
+    data = read_mapping(file, what="planner config", error=PlannerConfigError)
+    data["period_s"] = float(period_s)
+    data["ttl_s"] = round(max(base.ttl_s, period_s + base.ttl_s - base.period_s), 6)
+    data["rules"] = {**(data.get("rules") or {}), "replan_s": float(period_s)}
+    load_planner_config(file, overrides=data)  # the result validates, or the error names it
+    return data
+
+
 def load_planner_config(
     path: str | Path | None = None, *, overrides: Optional[dict[str, Any]] = None
 ) -> PlannerConfig:

@@ -450,6 +450,9 @@ class PlannerCore:
             "tokens_in": tokens_in,
             "tokens_out": tokens_out,
             "floor_added": list(floor.added),
+            # the user's text in force for this decision (sanitized; None: no instruction):
+            # one given mid-episode shows from the first decision after it
+            "instruction": self.instruction,
             "attempts": [a.__dict__ for a in attempts],
             "error_kind": None if wire is not None else (
                 attempts[-1].error_kind if attempts else "none"

@@ -176,9 +176,7 @@ def _lane_text(scene: Scene, *, short: bool = False) -> str:
         return f"limit {_num(lane.speed_limit_mps)} m/s"
     if lane.internal:
         return f"inside a junction (lane {lane.id}), limit {_num(lane.speed_limit_mps)} m/s"
-    n_lanes = sum(
-        1 for ln in scene.lanes.values() if ln.edge_id == lane.edge_id and not ln.internal
-    )
+    n_lanes = len(scene.edge_lanes(lane))
     nth = ORDINALS[lane.index] if lane.index < len(ORDINALS) else f"{lane.index + 1}th"
     return (f"lane {lane.id}, {nth} of {n_lanes} from the right, "
             f"limit {_num(lane.speed_limit_mps)} m/s")

@@ -150,6 +150,14 @@ class Scene:
     def agent_ids(self) -> tuple[str, ...]:
         return tuple(v.id for v in self.agents)
 
+    def edge_lanes(self, lane: Lane) -> dict[int, Lane]:
+        """The normal lanes of ``lane``'s edge by index (``lane`` among them); {} for a
+        junction's internal lane."""
+        if lane.internal:
+            return {}
+        return {ln.index: ln for ln in self.lanes.values()
+                if ln.edge_id == lane.edge_id and not ln.internal}
+
 
 def _renumber(cands: Sequence[Candidate]) -> tuple[Candidate, ...]:
     return tuple(

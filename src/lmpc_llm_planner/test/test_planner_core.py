@@ -214,6 +214,56 @@ def test_emergency_latency_is_honoured_separately(left_turn_map, obs_factory, pl
         cfg_with(planner_config, fixed_latency_s=5.0)
 
 
+def test_an_instruction_mid_episode_acts_from_the_next_decision_and_is_logged(
+        left_turn_map, obs_factory, planner_config, mpc_config, tmp_path):
+    """Issue 20 item 5: an instruction arriving at 3.0 s (between the 2.5 s and 5 s
+    decisions) changes nothing before and shapes the 5 s decision (the rules' careful
+    driving note and a larger safety weight); each decision's log record names the text
+    in force."""
+    log = tmp_path / "decisions.jsonl"
+    core = PlannerCore(planner_config, RulesBackend(), mpc_config, log_path=log)
+    plain = PlannerCore(planner_config, RulesBackend(), mpc_config)
+    ds, ps = [], []
+    for k in range(81):
+        t = k * 0.1
+        if k == 30:
+            core.on_instruction("Please drive conservatively.")
+        obs = obs_factory(left_turn_map, ego_v_mps=8.0, stamp_s=t, seq=k)
+        for c, out in ((core, ds), (plain, ps)):
+            d = c.on_observation(obs)
+            if d is not None:
+                out.append(d)
+    assert [round(d.stamp_s, 3) for d in ds] == [0.0, 2.5, 5.0, 7.5]
+    careful = "careful driving"
+    assert [careful in d.reasoning for d in ds] == [False, False, True, True]
+    assert [d.reasoning for d in ds[:2]] == [p.reasoning for p in ps[:2]]
+    assert ds[2].weights != ps[2].weights  # the text changed the decision, not only words
+    records = [json.loads(line) for line in log.read_text().splitlines()]
+    assert [r["instruction"] for r in records] == [
+        None, None, "Please drive conservatively.", "Please drive conservatively."]
+
+
+def test_cadence_config_sets_the_period_the_rules_replan_and_keeps_the_ttl_slack(
+        tmp_path):
+    """``--planning-period`` (issue 16 item 6): the period, the rules' assumed time to the
+    next decision and a TTL keeping the file's slack over its period; other settings kept."""
+    from lmpc_llm_planner.config import (
+        PlannerConfigError, cadence_config, load_planner_config)
+
+    slow = cadence_config(5.0)
+    assert (slow["period_s"], slow["ttl_s"], slow["rules"]["replan_s"]) == (5.0, 7.5, 5.0)
+    packaged = load_planner_config()
+    assert slow["rules"]["safe_gap_s"] == packaged.rules.safe_gap_s
+    fast = load_planner_config(overrides=cadence_config(1.0))
+    assert (fast.period_s, fast.ttl_s, fast.rules.replan_s) == (1.0, 5.0, 1.0)
+    own = tmp_path / "own.yaml"
+    own.write_text("period_s: 2.0\nttl_s: 3.0\n")  # slack 1 s over its own period
+    assert cadence_config(4.0, own)["ttl_s"] == 5.0
+    for bad in (0.0, -1.0, 61.0):
+        with pytest.raises(PlannerConfigError, match="planning period must be within"):
+            cadence_config(bad)
+
+
 def test_decide_for_effect_time_predicts_by_the_expected_latency(
         left_turn_map, obs_factory, planner_config, mpc_config):
     """``decide_for_effect_time`` (issue 23; off by default): the scene is the observation

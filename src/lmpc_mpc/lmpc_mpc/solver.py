@@ -382,9 +382,12 @@ class MpcSolver:
         return built
 
     def reset(self) -> None:
-        """Forget the warm start (e.g. after a teleport or a new episode)."""
+        """Forget the warm start (e.g. after a teleport or a new episode): the next solve is
+        cold, so a pending ``reconverge`` is void. ``over_budget`` counts on, like the
+        controller's counters (per process, not per episode)."""
         self._warm = None
         self._warm_slots = None
+        self._reconverge_next = False
 
     def warm_state(self) -> tuple[Optional[np.ndarray], Optional[int], bool, int]:
         """What the next solve starts from (warm start, its slot count, the reconverge flag)

@@ -21,9 +21,10 @@ from __future__ import annotations
 
 import math
 import statistics
-from typing import Any, Optional
+from typing import Any
 
-from lmpc_bridge.evaluation.table import markdown
+from lmpc_bridge.evaluation.style import edge_lane
+from lmpc_bridge.evaluation.table import finite, markdown, mean_finite
 from lmpc_bridge.record import EpisodeRecord
 
 APPROACH_M = 30.0
@@ -40,19 +41,12 @@ MIN_CHANGE = {"kerb_share": 0.02, "approach_mps": 0.1, "mean_speed_mps": 0.1}
 """A scene counts as changed by a situation when its figure moves by more than this."""
 
 
-def _lane_index(lane_id: Optional[str]) -> Optional[tuple[str, int]]:
-    if not lane_id or lane_id.startswith(":") or "_" not in lane_id:
-        return None
-    edge, _, idx = lane_id.rpartition("_")
-    return (edge, int(idx)) if idx.isdigit() else None
-
-
 def situation_metrics(record: EpisodeRecord) -> dict[str, Any]:
     """The situation figures of one episode (see the module doc); nan where undefined."""
     steps = record.steps
-    where = [_lane_index(s.lane_id) for s in steps]
+    where = [edge_lane(s.lane_id) for s in steps]
     normal = [w for w in where if w is not None]
-    kerb = sum(1 for w in normal if w[1] == 0) / len(normal) if normal else math.nan
+    kerb = sum(1 for w in normal if w[1] == "0") / len(normal) if normal else math.nan
     # distance driven up to each step, for the approach windows
     dist = [0.0]
     for a, b in zip(steps, steps[1:]):
@@ -73,15 +67,6 @@ def situation_metrics(record: EpisodeRecord) -> dict[str, Any]:
     }
 
 
-def _finite(v: Any) -> bool:
-    return isinstance(v, (int, float)) and math.isfinite(v)
-
-
-def _mean(values: Any) -> float:
-    finite = [float(v) for v in values if _finite(v)]
-    return statistics.fmean(finite) if finite else math.nan
-
-
 def situation_summary(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
     """Per family and situation (rows carry ``situation``): collisions, fails, means of
     time, O.C. and the figures, and for the situations of ``EXPECTED`` how many scenes
@@ -100,13 +85,13 @@ def situation_summary(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[st
                 "runs": len(sel), "collisions": sum(int(r["collision"]) for r in sel),
                 "fails": sum(int(r["fail"]) for r in sel)}
             for k in ("time_s", "overall_cost", *SITUATION_COLUMNS):
-                agg[k] = round(_mean(r.get(k) for r in sel), 3)
+                agg[k] = round(mean_finite(r.get(k) for r in sel), 3)
             changed = expected = 0
             if sit in EXPECTED:
                 key, sign = EXPECTED[sit]
                 for r in sel:
                     b = base.get(int(r["seed"]))
-                    if b is None or not (_finite(r.get(key)) and _finite(b.get(key))):
+                    if b is None or not (finite(r.get(key)) and finite(b.get(key))):
                         continue
                     diff = float(r[key]) - float(b[key])
                     if abs(diff) > MIN_CHANGE[key]:
@@ -122,7 +107,7 @@ def situation_table_md(summary: dict[str, dict[str, dict[str, Any]]]) -> str:
     moved, and of those the ones moved the expected way (``EXPECTED``)."""
 
     def f(v: Any, fmt: str) -> str:
-        return format(v, fmt) if _finite(v) else "-"
+        return format(v, fmt) if finite(v) else "-"
 
     rows = []
     for family, sits in summary.items():

@@ -24,7 +24,7 @@ import math
 import statistics
 from typing import Any, Optional
 
-from lmpc_bridge.evaluation.table import markdown
+from lmpc_bridge.evaluation.table import finite, markdown, mean_finite
 from lmpc_bridge.record import EpisodeRecord
 
 CROSS_HEADING_RAD = math.radians(30.0)
@@ -61,7 +61,8 @@ SITUATION_SETS = frozenset({"situations"})
 """The sets whose labels are situations (situations.csv / situation_table.md)."""
 
 
-def _edge_index(lane_id: Optional[str]) -> Optional[tuple[str, str]]:
+def edge_lane(lane_id: Optional[str]) -> Optional[tuple[str, str]]:
+    """(edge, lane index) of a normal lane's id; None on a junction (``:...``) or none."""
     if not lane_id or lane_id.startswith(":") or "_" not in lane_id:
         return None
     edge, _, idx = lane_id.rpartition("_")
@@ -82,7 +83,7 @@ def style_metrics(record: EpisodeRecord) -> dict[str, Any]:
     jn_gaps: list[float] = []
     changes = 0
     for prev, cur in zip(steps, steps[1:]):
-        p, c = _edge_index(prev.lane_id), _edge_index(cur.lane_id)
+        p, c = edge_lane(prev.lane_id), edge_lane(cur.lane_id)
         if p is not None and c is not None and p[0] == c[0] and p[1] != c[1]:
             changes += 1
             if cur.nearby:
@@ -103,11 +104,6 @@ def style_metrics(record: EpisodeRecord) -> dict[str, Any]:
     }
 
 
-def _mean(values: Any) -> float:
-    finite = [float(v) for v in values if isinstance(v, (int, float)) and math.isfinite(v)]
-    return statistics.fmean(finite) if finite else math.nan
-
-
 def style_summary(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
     """Per family and style (over all its phrasings and scenes): counts of collisions and
     fails, means of time, O.C. and the style figures (nan-skipping; ``*_n``: how many
@@ -124,15 +120,11 @@ def style_summary(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, A
                 "fails": sum(int(r["fail"]) for r in sel)}
             for k in ("time_s", "overall_cost", "mean_gap_m", "min_gap_m", "peak_decel_mps2",
                       "peak_jerk_mps3", "lc_gap_m", "junction_gap_m"):
-                agg[k] = round(_mean(r.get(k) for r in sel), 3)
-            agg["lc_gap_m_n"] = sum(1 for r in sel if _finite(r.get("lc_gap_m")))
-            agg["junction_gap_m_n"] = sum(1 for r in sel if _finite(r.get("junction_gap_m")))
+                agg[k] = round(mean_finite(r.get(k) for r in sel), 3)
+            agg["lc_gap_m_n"] = sum(1 for r in sel if finite(r.get("lc_gap_m")))
+            agg["junction_gap_m_n"] = sum(1 for r in sel if finite(r.get("junction_gap_m")))
             out[family][style] = agg
     return out
-
-
-def _finite(v: Any) -> bool:
-    return isinstance(v, (int, float)) and math.isfinite(v)
 
 
 def direction_share(rows: list[dict[str, Any]], key: str = "time_s", *,
@@ -145,7 +137,7 @@ def direction_share(rows: list[dict[str, Any]], key: str = "time_s", *,
     for family in sorted({r["family"] for r in rows}):
         per: dict[int, dict[str, list[float]]] = {}
         for r in rows:
-            if r["family"] == family and _finite(r.get(key)) and r.get("style") in STYLES:
+            if r["family"] == family and finite(r.get(key)) and r.get("style") in STYLES:
                 per.setdefault(int(r["seed"]), {}).setdefault(r["style"], []).append(
                     float(r[key]))
         matter = follow = 0
@@ -167,7 +159,7 @@ def style_table_md(summary: dict[str, dict[str, dict[str, Any]]],
     """The style table: one row a family and style."""
 
     def f(v: Any, fmt: str) -> str:
-        return format(v, fmt) if _finite(v) else "-"
+        return format(v, fmt) if finite(v) else "-"
 
     rows = []
     for family, styles in summary.items():

@@ -9,9 +9,19 @@ from typing import Any, Iterable, Sequence
 from lmpc_bridge.evaluation.rows import BASELINE
 
 
+def finite(v: Any) -> bool:
+    """A number that is not nan / inf (csv cells may be anything)."""
+    return isinstance(v, (int, float)) and math.isfinite(v)
+
+
+def mean_finite(values: Any) -> float:
+    """Mean of the finite numbers of ``values``; nan if none."""
+    vals = [float(v) for v in values if finite(v)]
+    return statistics.fmean(vals) if vals else math.nan
+
+
 def _mean(values: Any) -> float:
-    finite = [float(v) for v in values if isinstance(v, (int, float)) and math.isfinite(v)]
-    return round(statistics.fmean(finite), 3) if finite else math.nan
+    return round(mean_finite(values), 3)
 
 
 def aggregate(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:

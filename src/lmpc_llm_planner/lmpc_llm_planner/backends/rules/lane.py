@@ -158,8 +158,7 @@ def lane_view(scene: Scene, intent: Intent) -> Optional[LaneView]:
     here = scene.lanes.get(ego.lane_id or "")
     if here is None or here.internal or not scene.ego_candidates:
         return None
-    siblings = {ln.index: ln for ln in scene.lanes.values()
-                if ln.edge_id == here.edge_id and not ln.internal}
+    siblings = scene.edge_lanes(here)
     if len(siblings) < 2:
         return None
     by_lane = offered_by_lane(scene, here)

@@ -43,14 +43,14 @@ def situation_rule(inp: RuleInputs, plan: Plan) -> None:
     if intent.pedestrians_ahead:
         _pedestrians(inp, plan, here)
     if intent.make_room and here is not None and not here.internal:
-        if _lanes_of_edge(scene, here) < 2 or _kept_inner_lane(inp, plan, here):
+        if len(scene.edge_lanes(here)) < 2 or _kept_inner_lane(inp, plan, here):
             limit = here.speed_limit_mps
             _cap_speed(inp, plan, MAKE_ROOM_FRACTION * limit, None)
             plan.notes.append("The user asks me to make room for an emergency vehicle; "
                               "there is no lane to give here, so I slow down to "
                               f"{MAKE_ROOM_FRACTION * limit:.0f} m/s.")
     if intent.closed_sides and here is not None and not here.internal \
-            and _lanes_of_edge(scene, here) < 2:
+            and len(scene.edge_lanes(here)) < 2:
         plan.notes.append("The user says a lane is closed; my road has one lane here, so "
                           "that changes nothing yet.")
 
@@ -84,11 +84,6 @@ def _cap_speed(inp: RuleInputs, plan: Plan, cap_mps: float, dist_m: Optional[flo
         idx = mildest_accel(accel)
     if mid(accel[idx]) < mid(accel[plan.accel_index]):
         plan.accel_index = idx
-
-
-def _lanes_of_edge(scene: Scene, here: Lane) -> int:
-    return sum(1 for ln in scene.lanes.values()
-               if ln.edge_id == here.edge_id and not ln.internal)
 
 
 def _kept_inner_lane(inp: RuleInputs, plan: Plan, here: Lane) -> bool:
