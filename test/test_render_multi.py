@@ -60,7 +60,7 @@ def test_frame_marks_the_yielding_ego(run: multi.MultiRunData) -> None:
 
 
 def test_strip_and_gif_draw_the_yielding_ego(run: multi.MultiRunData, tmp_path: Path,
-                                              monkeypatch: pytest.MonkeyPatch) -> None:
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
     drawn: list[multi.Frame] = []
     paint = multi._draw_frame
 

@@ -137,7 +137,9 @@ class Frame:
 
 def frame(run: MultiRunData, step: int) -> Frame:
     """The instant ``step`` (a ``StepRecord.step``) of ``run``."""
-    egos, others, done = [], {}, []
+    egos: list[EgoFrame] = []
+    others: dict[str, NearbyVehicle] = {}
+    done: list[str] = []
     for eid in run.ego_ids:
         rec = run.at(eid, step)
         if rec is None:
@@ -411,7 +413,8 @@ def render_multi_gif(run: MultiRunData, *, out: Path, every_k: int = 4, fps: flo
         canvas = cast(FigureCanvasAgg, fig.canvas)
         canvas.draw()
         background = canvas.copy_from_bbox(fig.bbox)
-        frames, dynamic = [], []
+        frames: list[Any] = []
+        dynamic: list[Any] = []
         for st in steps:
             for artist in dynamic:
                 artist.remove()
