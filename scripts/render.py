@@ -5,6 +5,8 @@
     render.py run RUN_DIR [--out run.png] [--gif run.gif]
     render.py run --family usi --seed 0 --method lmpc-rules [--max-time-s 60] --out run.png
     render.py bars RESULTS_DIR                      -> RESULTS_DIR/oc_bars.png
+    render.py multi --family narrow --seed 0 --method mpc --coordination central \
+        --out strip.png [--gif encounter.gif]         (a multi-ego run, issue 18)
 
 What is drawn and what is approximated: docs/PICTURES.md. The drawing library is
 ``lmpc_bridge.render``; this command line adds the method registry's wiring for the
@@ -32,6 +34,7 @@ from lmpc_bridge.render import (
 )
 
 METHODS = ("mpc", "lmpc-rules")
+MULTI_MODES = ("none", "distributed", "central")
 
 
 def run_in_process(family: str, seed: int, method: str, *, work_dir: Path,
@@ -44,6 +47,37 @@ def run_in_process(family: str, seed: int, method: str, *, work_dir: Path,
 
     return render.run_in_process(family, seed, method, build=build, work_dir=work_dir,
                                  max_time_s=max_time_s)
+
+
+def shaded_sections(maps: dict) -> tuple[str, ...]:
+    """The lanes of the shared (one-lane) sections on the egos' maps, both directions
+    (the planner's conflict detection, ``coordination.conflicts.shared_sections``)."""
+    from lmpc_llm_planner.coordination.conflicts import shared_sections
+
+    lanes = {lid for mp in maps.values() for sec in shared_sections(mp)
+             for lid in (sec.via, sec.partner)}
+    return tuple(sorted(lanes))
+
+
+def run_multi(family: str, seed: int, method: str, mode: str, *, work_dir: Path,
+              max_time_s: float = 120.0) -> render.MultiRunData:
+    """One multi-ego episode in this process (``scripts/multi.py``'s wiring), for drawing."""
+    if method not in METHODS:
+        raise RenderError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+    if mode not in MULTI_MODES:
+        raise RenderError(f"unknown coordination {mode!r}; choose from "
+                          f"{', '.join(MULTI_MODES)}")
+    from lmpc_bridge.scenarios import SceneError, build_scene
+    from lmpc_scripts.multi import run_one
+
+    try:
+        scene = build_scene(family, seed, work_dir=work_dir)
+        result, _ = run_one(family, seed, method, mode, work_dir, max_time_s=max_time_s)
+    except SceneError as exc:
+        raise RenderError(f"cannot run {family}/{seed} with several egos: {exc}") from exc
+    return render.multi_run_data(result, method=method, mode=mode,
+                                 shaded_lanes=shaded_sections(result.maps),
+                                 net_file=Path(scene.net_file))
 
 
 # --- command line ----------------------------------------------------------------------
@@ -72,6 +106,18 @@ def _parse(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     bars = sub.add_parser("bars", help="O.C. bars from a benchmark's summary.json")
     bars.add_argument("results_dir", type=Path)
     bars.add_argument("--out", type=Path, default=None, help="default RESULTS_DIR/oc_bars.png")
+    mu = sub.add_parser("multi", help="a multi-ego run: strip of instants, optional GIF")
+    mu.add_argument("--family", default="narrow")
+    mu.add_argument("--seed", type=int, default=0)
+    mu.add_argument("--method", choices=METHODS, default="mpc")
+    mu.add_argument("--coordination", choices=MULTI_MODES, default="central")
+    mu.add_argument("--max-time-s", type=float, default=120.0)
+    mu.add_argument("--instants", type=int, default=4, help="panels of the strip")
+    mu.add_argument("--out", type=Path, default=None,
+                    help="PNG strip (default <family>_<seed>_<coordination>_multi.png)")
+    mu.add_argument("--gif", type=Path, default=None, help="also write an animated GIF")
+    mu.add_argument("--every-k", type=int, default=4, help="GIF: every k-th step")
+    mu.add_argument("--work-dir", type=Path, default=None, help="scene cache folder")
     args = ap.parse_args(argv)
     if args.command == "run" and (args.run_dir is None) == (args.family is None):
         ap.error("run: give either RUN_DIR or --family (with --seed / --method)")
@@ -99,6 +145,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             print(render_run(run, out=args.out or default_out))
             if args.gif:
                 print(render_gif(run, out=args.gif, every_k=args.every_k))
+        elif args.command == "multi":
+            work_dir = args.work_dir or Path(tempfile.mkdtemp(prefix="lmpc-render-"))
+            data = run_multi(args.family, args.seed, args.method, args.coordination,
+                             work_dir=work_dir, max_time_s=args.max_time_s)
+            out = args.out or Path(f"{args.family}_{args.seed}_{args.coordination}_multi.png")
+            print(render.render_multi_strip(data, out=out, instants=args.instants))
+            if args.gif:
+                print(render.render_multi_gif(data, out=args.gif, every_k=args.every_k))
         else:
             path = args.results_dir / "summary.json"
             if not path.is_file():

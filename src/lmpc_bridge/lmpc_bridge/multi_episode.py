@@ -8,6 +8,13 @@ the coordination and handed to the controller; then ONE ``sim.step(controls)``. 
 exceptions of a controller / planner are counted, the step taken with bounded braking /
 without a decision. The planners, controllers and the coordination are injected (the
 bridge imports neither the planner nor the MPC); ``scripts/multi.py`` wires them.
+
+For pictures the result keeps, per ego, its single-ego :class:`EpisodeRecord` (pose, speed,
+the vehicles it sensed, per step), its map, and an :class:`EgoMark` per step: the command
+the coordination had in force for it (``yield`` / ``proceed``, from a directive or the
+distributed rule) and whether it was holding (the hold obstacle in its observation). The
+marks come from the coordination's optional ``marks()`` (``{ego_id: {command, source,
+holding, intent}}`` for the step just prepared); without it, or in mode ``none``, no marks.
 """
 from __future__ import annotations
 
@@ -15,10 +22,11 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Optional, Protocol
 
-from lmpc_msgs_py.messages import Control, Decision, EpisodeMetrics
+from lmpc_msgs_py.messages import Control, Decision, EpisodeMetrics, MapSnapshot
 from lmpc_msgs_py.observation import Observation
 
 from lmpc_bridge.multi_sim import MultiSumoSim
+from lmpc_bridge.record import EpisodeRecord
 
 
 class CoordinationLike(Protocol):
@@ -32,6 +40,26 @@ class CoordinationLike(Protocol):
 class EgoWiring:
     controller: Any
     planner: Any = None
+
+
+@dataclass(frozen=True)
+class EgoMark:
+    """What the coordination had one ego do at one step (for pictures)."""
+
+    step: int
+    """The ``StepRecord.step`` of the ego's record this mark belongs to."""
+    command: Optional[str] = None
+    """``yield`` / ``proceed`` in force, None without a command."""
+    source: str = ""
+    """Where the command came from (``central``, ``distributed``, a backend name)."""
+    holding: bool = False
+    """The hold obstacle was in the ego's observation (it was stopping before the section)."""
+    intent: str = ""
+    """The intent of the ego's status (``approach``, ``wait``, ``pass`` ...)."""
+
+    @property
+    def yielding(self) -> bool:
+        return self.command == "yield"
 
 
 @dataclass(frozen=True)
@@ -56,6 +84,12 @@ class MultiResult:
     deadlock: bool
     end_s: float
     stats: dict[str, int] = field(default_factory=dict)
+    records: dict[str, EpisodeRecord] = field(default_factory=dict)
+    """Per ego, its record (as a single-ego episode's), for pictures and replay."""
+    maps: dict[str, MapSnapshot] = field(default_factory=dict)
+    """Per ego, its map (its route and target on the scene's roads)."""
+    marks: dict[str, tuple[EgoMark, ...]] = field(default_factory=dict)
+    """Per ego, the coordination's marks by step (empty without coordination)."""
 
     @property
     def ego_ids(self) -> frozenset[str]:
@@ -105,12 +139,20 @@ def run_multi_episode(sim: MultiSumoSim, *, family: str, seed: int,
     counts = {eid: {"decisions": 0, "fallbacks": 0, "controller_errors": 0,
                     "planner_errors": 0} for eid in egos}
     last_decision: dict[str, Optional[str]] = {eid: None for eid in egos}
+    marks: dict[str, list[EgoMark]] = {eid: [] for eid in egos}
+    marks_of = getattr(coordination, "marks", None)
     while sim.running:
         running = sim.running_ids()
         obs = {eid: sim.observe(eid, required_decision_id=last_decision[eid])
                for eid in running}
         if coordination is not None:
             obs = coordination.prepare(sim.time_s, obs)
+            step = int(round(sim.time_s / sim.dt_s)) + 1  # the record step this one makes
+            for eid, m in (marks_of() if marks_of is not None else {}).items():
+                marks[eid].append(EgoMark(step=step, command=m.get("command"),
+                                          source=str(m.get("source", "")),
+                                          holding=bool(m.get("holding", False)),
+                                          intent=str(m.get("intent", ""))))
         controls: dict[str, Optional[Control]] = {}
         for eid in running:
             wiring, c = egos[eid], counts[eid]
@@ -151,6 +193,9 @@ def run_multi_episode(sim: MultiSumoSim, *, family: str, seed: int,
                                  reached_at_s=run.reached_at_s, **counts[eid]))
     stats = dict(getattr(coordination, "stats", lambda: {})())
     end_s = sim.time_s
+    records = {eid: sim.record(eid) for eid in sorted(egos)}
+    maps = {eid: sim.egos[eid].map for eid in sorted(egos)}
     sim.close()
     return MultiResult(family=family, seed=seed, egos=tuple(results), deadlock=sim.deadlock,
-                       end_s=end_s, stats=stats)
+                       end_s=end_s, stats=stats, records=records, maps=maps,
+                       marks={eid: tuple(m) for eid, m in marks.items()})

@@ -7,6 +7,7 @@
 ``figures``   ``render_scene`` and ``render_run`` (path by speed plus key moments)
 ``gif``       ``render_gif``, the animated run
 ``bars``      ``plot_oc_bars``, the benchmark's O.C. per family and method
+``multi``     a multi-ego run (issue 18): strip of instants and GIF, yielding ego marked
 
 What is drawn and what is approximated (docs/PICTURES.md):
 
@@ -33,6 +34,12 @@ matplotlib.use("Agg")  # files only; never open a window (headless machines, wor
 from lmpc_bridge.render.bars import plot_oc_bars  # noqa: E402
 from lmpc_bridge.render.figures import key_moments, render_run, render_scene  # noqa: E402
 from lmpc_bridge.render.gif import MAX_GIF_BYTES, render_gif  # noqa: E402
+from lmpc_bridge.render.multi import (  # noqa: E402
+    MultiRunData,
+    multi_run_data,
+    render_multi_gif,
+    render_multi_strip,
+)
 from lmpc_bridge.render.runs import (  # noqa: E402
     DecisionInfo,
     RenderError,
@@ -43,6 +50,7 @@ from lmpc_bridge.render.runs import (  # noqa: E402
     save_run,
 )
 
-__all__ = ["MAX_GIF_BYTES", "DecisionInfo", "RenderError", "RunData", "key_moments",
-           "load_run", "plot_oc_bars", "read_decision_log", "render_gif", "render_run",
+__all__ = ["MAX_GIF_BYTES", "DecisionInfo", "MultiRunData", "RenderError", "RunData",
+           "key_moments", "load_run", "multi_run_data", "plot_oc_bars", "read_decision_log",
+           "render_gif", "render_multi_gif", "render_multi_strip", "render_run",
            "render_scene", "run_in_process", "save_run"]

@@ -63,9 +63,17 @@ class Coordination:
         self._memories: dict[str, dict[str, str]] = {eid: {} for eid in self.egos}
         self.statuses_sent = 0
         self.yield_steps: dict[str, int] = {eid: 0 for eid in self.egos}
+        self._marks: dict[str, dict[str, object]] = {}
+
+    def marks(self) -> dict[str, dict[str, object]]:
+        """Per ego of the last ``prepare``: the command in force (``yield`` / ``proceed`` /
+        None), its source, whether the hold obstacle was put in its observation, and the
+        intent it reported (for pictures: ``lmpc_bridge.multi_episode.EgoMark``)."""
+        return self._marks
 
     def prepare(self, now_s: float, obs: dict[str, Observation]) -> dict[str, Observation]:
         """The observations the running egos (``obs``'s keys) act on this step."""
+        self._marks = {}
         if self.mode == "none":
             return obs
         statuses = [decode(encode(self.egos[eid].status(o)), EgoStatus,
@@ -95,11 +103,17 @@ class Coordination:
                     if self.on_silence == "distributed":
                         self._distributed(eid, statuses, now_s)
         out = {}
+        intents = {s.ego_id: s.intent for s in statuses}
         for eid, o in obs.items():
-            cmd = self.egos[eid].in_force(now_s)
+            ego = self.egos[eid]
+            cmd = ego.in_force(now_s)
             if cmd is not None and cmd.command == "yield":
                 self.yield_steps[eid] += 1
-            out[eid] = self.egos[eid].apply(o)
+            holds = ego.holds
+            out[eid] = ego.apply(o)
+            self._marks[eid] = {"command": None if cmd is None else cmd.command,
+                                "source": "" if cmd is None else cmd.source,
+                                "holding": ego.holds > holds, "intent": intents.get(eid, "")}
         return out
 
     def _distributed(self, eid: str, statuses: list[EgoStatus], now_s: float) -> None:
