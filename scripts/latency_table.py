@@ -88,7 +88,7 @@ def table_md(runs: dict[Setting, dict[str, Any]]) -> str:
 
 
 def plot(runs: dict[Setting, dict[str, Any]], png: Path) -> None:
-    """O.C. change (lines) and collisions (bars) per family: against the decision latency
+    """O.C. change (lines) and collisions + fails (bars) per family: against the decision latency
     at the packaged period (left) and against the planning period at latency 0 (right),
     where more than one such run exists."""
     import matplotlib
@@ -117,15 +117,19 @@ def plot(runs: dict[Setting, dict[str, Any]], png: Path) -> None:
             if base is not None and base["overall_cost"] > 0:
                 ax_oc.plot(xs, [100.0 * (v / base["overall_cost"] - 1) for v in oc], "o-",
                            label=fam.upper())
-            ax_col.bar([x + (i - (len(families) - 1) / 2) * width for x in xs],
-                       [series[x]["families"][fam]["collisions"] for x in xs], width=width,
-                       label=fam.upper())
+            bx = [x + (i - (len(families) - 1) / 2) * width for x in xs]
+            coll = [series[x]["families"][fam]["collisions"] for x in xs]
+            bars = ax_col.bar(bx, coll, width=width, label=fam.upper())
+            ax_col.bar(bx, [series[x]["families"][fam]["fails"] for x in xs], width=width,
+                       bottom=coll, color=bars.patches[0].get_facecolor(), alpha=0.45,
+                       hatch="//")
         ax_oc.axhline(0.0, color="grey", lw=0.8)
         ax_oc.set_ylabel(f"O.C. change vs {ref[0]:g} s / {ref[1]:g} s, %")
         ax_oc.set_title(f"{METHOD}: what a slower decision costs" if col == 0
                         else f"{METHOD}: what a rarer decision costs")
         ax_oc.legend(ncol=len(families), fontsize=8)
-        ax_col.set_ylabel("collisions")
+        ax_col.set_ylabel("collisions (solid) + fails (hatched)")
+        ax_col.set_ylim(bottom=0.0, top=max(1.0, ax_col.get_ylim()[1]))
         ax_col.set_xlabel(label)
         ax_col.set_xticks(xs_all)
         ax_col.yaxis.get_major_locator().set_params(integer=True)
