@@ -11,7 +11,7 @@ LLAMA_CMAKE_ARGS ?= -DGGML_NATIVE=OFF -DGGML_AVX2=ON -DGGML_FMA=ON -DGGML_F16C=O
 PKGS := src/lmpc_msgs_py src/lmpc_mpc src/lmpc_bridge src/lmpc_llm_planner
 SETUPS := pyproject.toml $(foreach p,$(PKGS),$(p)/setup.py)
 
-.PHONY: install demo test lint bench clean
+.PHONY: install demo test lint bench train clean
 
 install: $(STAMP)
 
@@ -28,10 +28,19 @@ $(STAMP): $(SETUPS)
 demo: install
 	$(PY) scripts/run_graph.py --scenario usi --seed 0 --planner rules --clock sync
 
-# The paper's Table I: 5 families x 25 seeds x {mpc, lmpc-rules}, in-process, one worker per core.
+# The paper's Table I: 5 families x 25 seeds x {mpc, lmpc-rules, dqn}, in-process, one worker
+# per core. dqn: the committed policies/dqn-<family>.npz (numpy only; docs/RL.md).
 bench: install
 	$(PY) scripts/benchmark.py --families si,usi,lane,rab,eoa --seeds 0-24 \
-		--methods mpc,lmpc-rules --out runs/bench
+		--methods mpc,lmpc-rules,dqn --out runs/bench
+
+# Re-train the committed DQN policies (docs/RL.md, "Measured"): needs the rl extra
+# (pip install -e '.[rl]': skrl on CPU JAX); ~10 min a family on a loaded 2-core machine.
+TRAIN_STEPS ?= 8000
+train:
+	for f in si usi lane rab eoa; do \
+		$(PY) scripts/train_rl.py --algo dqn --family $$f --steps $(TRAIN_STEPS) --seed 10000 \
+			--envs 2 --eval-scenes 5 --install || exit 1; done
 
 # mypy: the modules listed in pyproject.toml [tool.mypy] (issue 15's scope; it says why).
 lint: install

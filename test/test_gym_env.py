@@ -50,6 +50,27 @@ def test_reset_with_a_seed_repeats_and_other_seeds_pick_other_scenes() -> None:
     assert env.observation_space.contains(obs)
 
 
+def test_reset_skips_a_scene_sumo_cannot_start() -> None:
+    """si/10086: SUMO blocks the ego's insertion (the benchmark's ``error`` row). Training
+    draws another scene instead of dying (it killed a DQN run at step ~14 000); asked for
+    by name, the scene is an error."""
+    from lmpc_bridge.sim import SimError
+
+    env = gym_env.LmpcDrivingEnv("si", seeds=(10086, 10001))
+    with pytest.raises(SimError, match="si/10086: SUMO did not insert the ego"):
+        env.reset(options={"scene_seed": 10086})
+    skipped = []
+    for s in range(6):
+        obs, info = env.reset(seed=s)
+        assert info["scene_seed"] == 10001 and env.observation_space.contains(obs)
+        skipped += info["skipped_seeds"]
+    assert skipped and set(skipped) == {10086}
+    env.step(env.action_space.sample())  # the episode after a failed start runs
+    only_bad = gym_env.LmpcDrivingEnv("si", seeds=(10086,))
+    with pytest.raises(SimError, match=r"skipped before: \[10086"):
+        only_bad.reset(seed=0)
+
+
 def test_bad_arguments_get_one_line_errors() -> None:
     with pytest.raises(ValueError, match="unknown family 'nope'"):
         gym_env.LmpcDrivingEnv("nope")

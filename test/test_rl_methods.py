@@ -81,6 +81,42 @@ def test_a_shipped_policy_drives_one_scene_deterministically(
     assert f"{algo}: {rows[0]['decisions']} decisions" in rows[0]["detail"]
 
 
+SHIPPED_DIR = REPO / "policies"
+
+
+def test_the_shipped_policies_load_with_their_provenance() -> None:
+    shipped = sorted(SHIPPED_DIR.glob("*.npz"))
+    assert (SHIPPED_DIR / "dqn-usi.npz") in shipped
+    for path in shipped:
+        algo, family = path.stem.split("-", 1)
+        pol = method_rl.load_policy(path)
+        assert (pol.algo, pol.meta["family"]) == (algo, family), path.name
+        # trained on the training range only, with its provenance
+        first, last = (int(s) for s in pol.meta["scene_seeds"].split("-"))
+        assert pol.meta["seed"] >= 10000 and first >= 10000 and last >= first
+        assert pol.meta["steps"] > 0 and pol.meta["train_wall_s"] > 0
+        assert len(pol.meta["commit"]) == 40 and pol.meta["versions"]["skrl"] != "absent"
+        assert pol.meta["command"].startswith("train_rl.py --algo " + algo)
+        out = pol.forward(np.zeros(obs_size(pol.k_agents), np.float32))
+        assert out.shape == ((9,) if algo == "dqn" else (2,))
+        assert np.isfinite(out).all()
+
+
+def test_the_shipped_dqn_policy_drives_one_scene_deterministically(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The committed policies/dqn-usi.npz (numpy only: no JAX in CI), twice on one
+    training scene: it decides, and the two rows are equal to the last digit."""
+    monkeypatch.setenv(method_rl.POLICY_DIR_ENV, str(SHIPPED_DIR))
+    settings = RunSettings(work_dir=str(tmp_path / "work"), log_dir=str(tmp_path / "logs"))
+    rows = [run_scene("dqn", "usi", 10003, settings, methods.build, methods.prepare)
+            for _ in range(2)]
+    assert rows[0]["outcome"] != "error", rows[0]["detail"]
+    assert rows[0]["decisions"] > 0  # not the neutral action throughout
+    same = ("outcome", "time_s", "ineff", "pen_acc", "pen_dist", "overall_cost", "decisions",
+            "steps", "detail")
+    assert [rows[0][k] for k in same] == [rows[1][k] for k in same]
+
+
 def test_actions_map_to_the_decision_spaces_intervals() -> None:
     planner = method_rl.ActionPlanner("continuous")
     space = planner.space

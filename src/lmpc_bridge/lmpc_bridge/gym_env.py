@@ -32,6 +32,10 @@ from lmpc_bridge.rl_obs import DEFAULT_K_AGENTS, CLIP, RouteFrame, obs_size, \
 FAILURE_PENALTY = W_TIME * 200.0
 """A collision or leaving the route costs what the O.C.'s time term charges a timeout
 (1.5 x 200 s = 300)."""
+RESET_TRIES = 8
+"""A scene SUMO cannot start (e.g. si/10086: the ego's insertion is blocked, a ``SimError``
+the benchmark records as an ``error`` row) is skipped at reset: another of ``seeds`` is
+drawn, up to this many times."""
 ROUTE_SPEED_MPS = 13.89
 """The speed the progress term prices distance at (50 km/h, the oracle's cap)."""
 
@@ -107,26 +111,39 @@ class LmpcDrivingEnv(gym.Env):
               ) -> tuple[np.ndarray, dict[str, Any]]:
         global _SIM
         from lmpc_bridge.episode import Episode
-        from lmpc_bridge.sim import SumoSim
+        from lmpc_bridge.sim import SimError, SumoSim
 
         super().reset(seed=seed)
-        if options and "scene_seed" in options:
-            scene_seed = int(options["scene_seed"])
-        else:
-            scene_seed = self.seeds[int(self.np_random.integers(len(self.seeds)))]
+        pinned = bool(options and "scene_seed" in options)
         if _SIM is None:
             work = self._work_dir or Path(tempfile.mkdtemp(prefix="lmpc-gym-"))
             _SIM = SumoSim(work_dir=work)
-        self.scene_seed = scene_seed
-        self.episode = Episode(_SIM, family=self.family, seed=scene_seed,
-                               controller=self._make_controller(), planner=None,
-                               max_time_s=self.max_time_s)
-        self.episode.start()
+        skipped: list[int] = []
+        for attempt in range(RESET_TRIES):
+            if pinned:
+                scene_seed = int(options["scene_seed"])  # type: ignore[index]
+            else:
+                scene_seed = self.seeds[int(self.np_random.integers(len(self.seeds)))]
+            self.scene_seed = scene_seed
+            self.episode = Episode(_SIM, family=self.family, seed=scene_seed,
+                                   controller=self._make_controller(), planner=None,
+                                   max_time_s=self.max_time_s)
+            try:
+                self.episode.start()
+                break
+            except SimError as exc:
+                # a scene SUMO cannot start: pinned, the caller's problem; else draw again
+                if pinned or attempt == RESET_TRIES - 1:
+                    self.episode = None
+                    skip = f" (skipped before: {skipped})" if skipped else ""
+                    raise SimError(f"{exc}{skip}") from None
+                skipped.append(scene_seed)
         self._geometry = RouteFrame()
         self._obs = self.episode.begin_step()
         speed = ROUTE_SPEED_MPS
         self._n_est = self._obs.ego.dist_to_target_m / speed / _SIM.dt_s + 1.0
-        return self._vector(), {"scene_seed": scene_seed, "family": self.family}
+        return self._vector(), {"scene_seed": scene_seed, "family": self.family,
+                                "skipped_seeds": skipped}
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         ep = self.episode
