@@ -110,6 +110,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     help="at most this many recorded states per episode")
     ap.add_argument("--perturbed", type=int, default=1,
                     help="perturbed copies per recorded state")
+    ap.add_argument("--bc-steps", type=int, default=0,
+                    help="first this many steps imitate the recorded MPC controls (a warm "
+                    "start; the rest minimise the MPC's cost); 0: cost only")
     ap.add_argument("--seed", type=int, default=0, help="network init and perturbations")
     ap.add_argument("--eval-every", type=int, default=250)
     ap.add_argument("--out", type=Path, default=Path("runs/adp/train"))
@@ -176,6 +179,21 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         j = adp.objective(jnp, parts, us, xs, veh)
         return jnp.mean(jnp.log(j + LOSS_OFFSET)), j
 
+    u_rec = d["u"][idx]
+    u_scale = jnp.asarray([1.0, 0.05])  # m/s2, rad: an error of either counts alike
+
+    def bc_fn(prm: Any, x: Any, p: Any, u_mpc: Any) -> Any:
+        parts = adp.split_params(p, n)
+        z = adp.mlp(jnp, prm, x).reshape(x.shape[:-1] + (n, NU))
+        us = adp.controls(jnp, z, parts.x0, veh, dt)
+        return jnp.mean(((us - u_mpc) / u_scale) ** 2), jnp.zeros(x.shape[0])
+
+    @jax.jit
+    def bc_step(prm: Any, st: Any, x: Any, p: Any, u_mpc: Any) -> Any:
+        (loss, j), grads = jax.value_and_grad(bc_fn, has_aux=True)(prm, x, p, u_mpc)
+        upd, st = opt.update(grads, st, prm)
+        return optax.apply_updates(prm, upd), st, loss, jnp.mean(j)
+
     @jax.jit
     def train_step(prm: Any, st: Any, x: Any, p: Any) -> Any:
         (loss, j), grads = jax.value_and_grad(loss_fn, has_aux=True)(prm, x, p)
@@ -203,13 +221,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     compile_s = None
     with curve_path.open("w", newline="") as fh:
         wr = csv.writer(fh)
-        wr.writerow(["step", "wall_s", "loss", "batch_mean_J", "heldout_rel_gap_median",
+        wr.writerow(["step", "phase", "wall_s", "loss", "batch_mean_J", "heldout_rel_gap_median",
                      "heldout_rel_gap_p90", "heldout_gap_median"])
         run_loss, run_j = [], []
         for step in range(1, args.steps + 1):
-            b = rng.integers(0, len(x_all), args.batch)
-            params, state, loss, mj = train_step(params, state, jnp.asarray(x_all[b]),
-                                                 jnp.asarray(p_all[b]))
+            if step <= args.bc_steps:  # imitation warm start on the recorded states
+                b = rng.integers(0, len(p0), args.batch)
+                params, state, loss, mj = bc_step(params, state, jnp.asarray(x_all[b]),
+                                                  jnp.asarray(p_all[b]), jnp.asarray(u_rec[b]))
+            else:
+                b = rng.integers(0, len(x_all), args.batch)
+                params, state, loss, mj = train_step(params, state, jnp.asarray(x_all[b]),
+                                                     jnp.asarray(p_all[b]))
             if compile_s is None:
                 loss.block_until_ready()
                 compile_s = time.perf_counter() - t0
@@ -217,7 +240,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             run_j.append(float(mj))
             if step % args.eval_every == 0 or step == args.steps:
                 ev = evaluate(params) or {}
-                wr.writerow([step, round(time.perf_counter() - t0, 1),
+                wr.writerow([step, "bc" if step <= args.bc_steps else "cost",
+                             round(time.perf_counter() - t0, 1),
                              round(float(np.mean(run_loss)), 5),
                              round(float(np.mean(run_j)), 5),
                              ev.get("rel_gap_median", ""), ev.get("rel_gap_p90", ""),
@@ -234,7 +258,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
             "commit": git_commit(), "python": platform.python_version(),
             "jax": jax.__version__, "optax": optax.__version__, "numpy": np.__version__,
-            "steps": args.steps, "batch": args.batch, "lr": args.lr, "seed": args.seed,
+            "steps": args.steps, "bc_steps": args.bc_steps, "batch": args.batch,
+            "lr": args.lr, "seed": args.seed,
             "loss": f"mean log(J + {LOSS_OFFSET})", "wall_s": round(wall, 1),
             "compile_s": round(compile_s or 0.0, 1),
             "train_states": int(len(p0)), "train_states_with_perturbed": int(len(p_all)),
