@@ -230,6 +230,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                 params, state, loss, mj = bc_step(params, state, jnp.asarray(x_all[b]),
                                                   jnp.asarray(p_all[b]), jnp.asarray(u_rec[b]))
             else:
+                if step == args.bc_steps + 1:  # the cost's gradients are on another scale
+                    state = opt.init(params)
                 b = rng.integers(0, len(x_all), args.batch)
                 params, state, loss, mj = train_step(params, state, jnp.asarray(x_all[b]),
                                                      jnp.asarray(p_all[b]))
