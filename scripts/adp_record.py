@@ -84,12 +84,31 @@ class Recorder:
 
         MpcSolver.solve = solve  # type: ignore[method-assign]
 
+    def install_params(self, n: int, dt_s: float) -> None:
+        """For the ``adp`` method (no NLP solve): keep every packed problem, with no MPC
+        solution (u, w0 NaN): the states the network's own closed loop visits."""
+        rec = self
+        orig = MpcSolver._params
+
+        def params(solver: MpcSolver, problem: Any) -> Any:
+            out = orig(solver, problem)
+            p, _, n_slots = out
+            rec.rows.append({"family": rec.tag[0], "seed": rec.tag[1], "p": p,
+                             "n_slots": n_slots, "w0": np.full((n + 1) * NX + n * 2, np.nan),
+                             "u": np.full((n, 2), np.nan), "iters": 0, "t": np.nan,
+                             "cpu": np.nan})
+            return out
+
+        MpcSolver._params = params  # type: ignore[method-assign]
+
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--families", default="si,usi,lane,rab,eoa")
     ap.add_argument("--seeds", type=parse_seeds, default=parse_seeds("10000-10007"))
     ap.add_argument("--max-slots", type=int, default=10)
+    ap.add_argument("--method", choices=("mpc", "adp"), default="mpc",
+                    help="adp: record the network's own closed loop (problems only)")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
     if min(args.seeds) < TRAIN_SEED_MIN:
@@ -100,7 +119,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     from lmpc_scripts import methods
 
     rec = Recorder()
-    rec.install()
+    if args.method == "mpc":
+        rec.install()
+    else:
+        from lmpc_mpc.config import load_mpc_config
+
+        cfg = load_mpc_config()
+        rec.install_params(cfg.horizon, cfg.dt_s)
     work = tempfile.mkdtemp(prefix="adp-rec-")
     settings = RunSettings(work_dir=work)
     t0 = time.perf_counter()
@@ -109,11 +134,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         for seed in args.seeds:
             rec.tag = (fam, seed)
             before = len(rec.rows)
-            row = run_scene("mpc", fam, seed, settings, methods.build, methods.prepare)
+            row = run_scene(args.method, fam, seed, settings, methods.build, methods.prepare)
             outcomes.append(f"{fam}:{seed}:{row.get('outcome')}")
             print(f"{fam} {seed}: {row.get('outcome')}, {len(rec.rows) - before} solves, "
                   f"{time.perf_counter() - t0:.0f} s", flush=True)
-    n = methods._SOLVER.n
+    from lmpc_mpc.config import load_mpc_config
+
+    n = load_mpc_config().horizon
     ps, keep = [], []
     dropped = 0
     for r in rec.rows:

@@ -113,6 +113,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--bc-steps", type=int, default=0,
                     help="first this many steps imitate the recorded MPC controls (a warm "
                     "start; the rest minimise the MPC's cost); 0: cost only")
+    ap.add_argument("--extra", type=Path, nargs="*", default=[],
+                    help="more adp_record.py files whose states join the cost's training "
+                    "pool (e.g. the network's own closed loop: --method adp)")
+    ap.add_argument("--init", type=Path, default=None,
+                    help="start from this network (its layers and input scaling)")
     ap.add_argument("--seed", type=int, default=0, help="network init and perturbations")
     ap.add_argument("--eval-every", type=int, default=250)
     ap.add_argument("--out", type=Path, default=Path("runs/adp/train"))
@@ -137,11 +142,24 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 2
     idx = cap_per_episode(d, args.per_episode, rng)
     p0 = d["p"][idx]
-    p_all = np.concatenate([p0] + [perturb(p0, rng, 1.0) for _ in range(args.perturbed)])
+    extra = []
+    for path in args.extra:
+        e = np.load(path)
+        if int(e["seed"].min()) < TRAIN_SEED_MIN or int(e["max_slots"]) != int(d["max_slots"]):
+            print(f"train_adp: {path}: seeds below {TRAIN_SEED_MIN} or another slot layout",
+                  file=sys.stderr)
+            return 2
+        extra.append(e["p"][cap_per_episode(e, args.per_episode, rng)])
+    p_all = np.concatenate([p0] + [perturb(p0, rng, 1.0) for _ in range(args.perturbed)]
+                           + extra)
     feats = adp.features(adp.split_params(p_all, n), veh)
-    mean = feats.mean(axis=0)
-    std = feats.std(axis=0)
-    std = np.where(std < 1e-6, 1.0, std)
+    init = adp.load_adp(args.init) if args.init is not None else None
+    if init is not None:
+        mean, std = init.mean, init.std
+    else:
+        mean = feats.mean(axis=0)
+        std = feats.std(axis=0)
+        std = np.where(std < 1e-6, 1.0, std)
     x_all = (feats - mean) / std
     print(f"{len(p0)} recorded states (of {len(d['p'])}), {len(p_all)} with perturbations, "
           f"{x_all.shape[1]} features", flush=True)
@@ -168,6 +186,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             mid_a = (0.0 - 0.5 * (hi + lo)) / (0.5 * (hi - lo))
             bias = bias.at[0::2].set(float(np.arctanh(mid_a)))
         params.append((jax.random.normal(sub, (a, b)) * scale * np.sqrt(1.0 / a), bias))
+    if init is not None:
+        params = [(jnp.asarray(w), jnp.asarray(b)) for w, b in init.layers]
     opt = optax.adam(optax.cosine_decay_schedule(args.lr, args.steps, alpha=0.05))
     state = opt.init(params)
 
@@ -264,6 +284,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             "lr": args.lr, "seed": args.seed,
             "loss": f"mean log(J + {LOSS_OFFSET})", "wall_s": round(wall, 1),
             "compile_s": round(compile_s or 0.0, 1),
+            "init": None if init is None else {
+                "file": str(args.init), "command": init.meta.get("command"),
+                "steps": init.meta.get("steps")},
+            "extra_data": [str(x) for x in args.extra],
+            "extra_states": int(sum(len(x) for x in extra)),
             "train_states": int(len(p0)), "train_states_with_perturbed": int(len(p_all)),
             "train_data": str(args.data), "train_seeds": sorted(int(s) for s in set(d["seed"])),
             "train_families": sorted(str(f) for f in set(d["family"])),
