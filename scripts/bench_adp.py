@@ -132,7 +132,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     print("wall times (a loaded machine inflates them; process CPU time inflates less):")
     print(f"FATROP solve (warm) : {pct(t_fat)}; cpu {pct(c_fat)}")
     print(f"ADP forward pass    : {pct(t_adp)}; cpu {pct(c_adp)}")
-    print(f"ratio FATROP / ADP  : median {out['ratio_median']:.1f}x, p99 {out['ratio_p99']:.1f}x")
+    print(f"ratio FATROP / ADP  : median {out['ratio_median']:.1f}x, p99 {out['ratio_p99']:.1f}x; "
+          f"cpu median {out['ratio_cpu_median']:.1f}x")
     print(f"MPC cost J          : median {np.median(j_fat):.4f}; ADP median "
           f"{np.median(j_adp):.4f}")
     print(f"ADP - MPC cost      : median {np.median(gap):.4f}, p90 {np.percentile(gap, 90):.4f}; "
