@@ -191,6 +191,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if not families:
             return 0
     learned = [m for m in methods if m in ALGOS]
+    if "adp" in methods:
+        from lmpc_scripts.method_adp import adp_path
+
+        if args.policy_dir is not None:
+            os.environ[POLICY_DIR_ENV] = str(args.policy_dir.resolve())
+        if not adp_path().is_file():
+            print(f"benchmark: no ADP network {adp_path()}: train it "
+                  "(scripts/train_adp.py --install) or give --policy-dir", file=sys.stderr)
+            return 2
     if learned:
         if args.policy_dir is not None:  # the workers read it from the environment
             os.environ[POLICY_DIR_ENV] = str(args.policy_dir.resolve())

@@ -213,6 +213,9 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     Method("sac", "learned planner: a SAC policy (policies/sac-<family>.npz or "
            "$LMPC_POLICY_DIR) choosing decisions for the MPC (docs/RL.md)",
            "lmpc_scripts.method_rl:build"),
+    Method("adp", "the MPC with its solve replaced by the ADP network's forward pass "
+           "(policies/adp.npz or $LMPC_POLICY_DIR; docs/RL.md, ADP)",
+           "lmpc_scripts.method_adp:build"),
     Method("lmpc-oracle", "the best of <= 32 decisions per planning instant, each rolled "
            "out 8 s in the scene itself (docs/ORACLE.md; tens of times slower)",
            "lmpc_scripts.method_oracle:build"),

@@ -224,7 +224,16 @@ class MpcSolver:
                 return size
         return self.config.agent_slot_sizes[-1]
 
-    def _build(self, n_slots: int) -> _Compiled:
+    def nlp_function(self, n_slots: int) -> ca.Function:
+        """``J(w, p) -> (f, g)``: the NLP's objective and constraint rows at the stage-wise
+        variables ``w`` (x_0, u_0, ..., x_N) and parameters ``p`` (what ``_params`` packs),
+        uncompiled (for checks: ``lmpc_mpc.adp`` re-expresses the objective)."""
+        nlp, *_ = self._nlp(n_slots)
+        return ca.Function("J", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])
+
+    def _nlp(self, n_slots: int) -> tuple[dict[str, Any], list[float], list[float],
+                                          list[float], list[float]]:
+        """The NLP (``x``, ``p``, ``f``, ``g``) and its bounds (lbx, ubx, lbg, ubg)."""
         n, dt, veh = self.n, self.dt_s, self.vehicle
         f = bicycle_function(veh)
         sym = stage_symbols(n, n_slots)
@@ -287,6 +296,12 @@ class MpcSolver:
             ubg += path_ub
         p_all = ca.vertcat(p_x0, p_w, *p_st)
         nlp = {"x": ca.vertcat(*w_vars), "p": p_all, "f": cost, "g": ca.vertcat(*g)}
+        return nlp, lbx, ubx, lbg, ubg
+
+    def _build(self, n_slots: int) -> _Compiled:
+        n = self.n
+        nlp, lbx, ubx, lbg, ubg = self._nlp(n_slots)
+        p_all = nlp["p"]
         lbg_a = np.array(lbg)
         ubg_a = np.array(ubg)
         equality = [bool(lo == hi) for lo, hi in zip(lbg, ubg)]
