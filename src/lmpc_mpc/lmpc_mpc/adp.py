@@ -166,7 +166,7 @@ def controls(xp: Any, z: Any, x0: Any, veh: VehicleParams, dt: float) -> Any:
         from jax import lax
 
         def body(carry: Any, zk: Any) -> Any:
-            v2, d2, u = step(*carry, zk)
+            v2, d2, u = step(carry[0], carry[1], zk)
             return (v2, d2), u
 
         _, seq = lax.scan(body, (v, d), xp.moveaxis(z, -2, 0))
@@ -265,7 +265,8 @@ class AdpPolicy:
     def save(self, path: Path) -> None:
         """Weights as float32 (half the file; the outputs move by ~1e-7 relative), the
         input scaling as float64, the provenance as JSON."""
-        arrays = {f"w{i}": w.astype(np.float32) for i, (w, _) in enumerate(self.layers)}
+        arrays: dict[str, Any] = {f"w{i}": w.astype(np.float32)
+                                  for i, (w, _) in enumerate(self.layers)}
         arrays.update({f"b{i}": b.astype(np.float32) for i, (_, b) in enumerate(self.layers)})
         arrays.update(mean=self.mean, std=self.std, meta=np.array(json.dumps(self.meta)))
         path.parent.mkdir(parents=True, exist_ok=True)
