@@ -68,6 +68,7 @@ from lmpc_bridge.sim import (
     SimError,
     SumoSim,
     _clip,
+    _note_rng_counts,
     _Seen,
     sumo_angle_from_yaw,
     yaw_from_sumo_angle,
@@ -206,8 +207,13 @@ class MultiSumoSim:
         t.vehicle.setLaneChangeMode(spec.ego_id, 0)
 
     def close(self) -> None:
+        """Stop SUMO; with libsumo, first note the static generators' call counts for the
+        next simulation of this process (``SumoSim.close`` does the same: a single-ego
+        branching run after this one would otherwise start from stale counts)."""
         if self._started:
             try:
+                if self._traci is libsumo:
+                    _note_rng_counts(self._traci, self._work_dir)
                 self._traci.close()
             finally:
                 self._started = False
