@@ -112,14 +112,14 @@ def test_multi_sim_observations_and_refusals(tmp_path: Path) -> None:
         with pytest.raises(SimError, match="unknown ego"):
             sim.observe("ego_3")
     finally:
-        import lmpc_bridge.sim as single
+        from lmpc_bridge import sumo_rng
 
         stale = {"default": -1}  # what an earlier simulation of the process left
-        single._RNG_COUNTS_AT_CLOSE = stale
+        sumo_rng._COUNTS_AT_CLOSE = stale
         sim.close()
     # closing noted this simulation's generator counts (or None: unknown, so a following
     # single-ego branching run restarts to find them) instead of leaving stale ones
-    assert single._RNG_COUNTS_AT_CLOSE is not stale
+    assert sumo_rng.counts_at_close() is not stale
 
 
 @pytest.mark.parametrize("extra,message", [

@@ -52,6 +52,7 @@ from lmpc_bridge.dynamics import EgoPose, clamp_control, step_bicycle
 from lmpc_bridge.geometry import OrientedBox, box_gap_m, boxes_overlap
 from lmpc_bridge.mapping import RouteGeometry, build_map, read_net
 from lmpc_bridge.metrics import compute_metrics
+from lmpc_bridge import sumo_rng
 from lmpc_bridge.multi_scene import EgoSpec, ego_scene, ego_specs
 from lmpc_bridge.record import EpisodeRecord, NearbyVehicle, StepRecord
 from lmpc_bridge.scenarios import Scene, SceneError, build_scene
@@ -68,7 +69,6 @@ from lmpc_bridge.sim import (
     SimError,
     SumoSim,
     _clip,
-    _note_rng_counts,
     _Seen,
     sumo_angle_from_yaw,
     yaw_from_sumo_angle,
@@ -213,7 +213,7 @@ class MultiSumoSim:
         if self._started:
             try:
                 if self._traci is libsumo:
-                    _note_rng_counts(self._traci, self._work_dir)
+                    sumo_rng.note_counts(self._traci, self._work_dir)
                 self._traci.close()
             finally:
                 self._started = False

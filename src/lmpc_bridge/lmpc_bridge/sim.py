@@ -18,8 +18,6 @@ libsumo runs one simulation per process: one ``SumoSim`` per process, and
 from __future__ import annotations
 
 import math
-import os
-import re
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,6 +42,7 @@ from lmpc_msgs_py.observation import Observation
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 from lmpc_bridge import demand as traffic
+from lmpc_bridge import sumo_rng
 from lmpc_bridge.dynamics import EgoPose, clamp_control, step_bicycle, wrap_angle_rad
 from lmpc_bridge.geometry import OrientedBox, box_gap_m, boxes_overlap
 from lmpc_bridge.mapping import RouteGeometry, build_map, read_net
@@ -84,35 +83,6 @@ _KIND_BY_VCLASS = {
 
 Outcome = Literal["running", "reached", "collision", "timeout", "off_route", "error"]
 
-# --- SUMO's random number generators across simulations of one process (branching) -------
-_CARRIED_RNGS = ("default", "routeHandler", "device", "device.btreceiver", "driverState",
-                 "device.toc")
-"""The generators of a state file's ``<rngState>`` that are static in libsumo: a new
-simulation in the same process seeds them afresh but does not reset their call counts,
-and a state file stores a generator as its call count (``--save-state.rng``), which
-``--load-state`` replays as that many draws from the fresh seed. A state saved in the
-second simulation of a process therefore put these generators too far on (by every draw
-of the simulations before it: usi seed 100 after one earlier run, vehicle ``onc2`` got
-another speed factor). The per-lane generators (``<rngLane>``) and the flow generator
-(``insertionControl``) belong to the simulation and start at 0 (measured on the five
-families; docs/BRANCHING.md)."""
-_RNG_COUNTS_AT_CLOSE: dict[str, int] | None = {}
-"""Call counts of :data:`_CARRIED_RNGS` when libsumo's last simulation in this process
-was closed (by a ``SumoSim``), i.e. what the next simulation's counts start from; None:
-not known (it could not be read)."""
-_RNG_STATE = re.compile(r"<rngState ([^>]*)>")
-_RNG_ATTR = re.compile(r'([\w.]+)="([^"]*)"')
-
-
-def _rng_counts(state_text: str) -> dict[str, int]:
-    """The call counts of :data:`_CARRIED_RNGS` in a state file's text (a generator saved
-    as its full state instead, which SUMO does past 10^6 calls, is left out)."""
-    m = _RNG_STATE.search(state_text)
-    if m is None:
-        return {}
-    return {k: int(v) for k, v in _RNG_ATTR.findall(m.group(1))
-            if k in _CARRIED_RNGS and v.isdigit() and len(v) < 10}
-
 
 @dataclass(frozen=True)
 class SimState:
@@ -140,23 +110,6 @@ class SimState:
 
 class SimError(RuntimeError):
     """The simulation cannot do what was asked (not started, episode over, SUMO failure)."""
-
-
-def _note_rng_counts(traci: Any, work_dir: Path) -> None:
-    """Read the running simulation's counts of :data:`_CARRIED_RNGS` (from a saved state:
-    TraCI has no query) into ``_RNG_COUNTS_AT_CLOSE``; None when that fails."""
-    global _RNG_COUNTS_AT_CLOSE
-    path = Path(work_dir) / f".rng-counts-{os.getpid()}.xml"
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        traci.simulation.saveState(str(path))
-        with path.open() as fh:
-            head = fh.read(16384)  # <rngState> follows the options header
-        _RNG_COUNTS_AT_CLOSE = _rng_counts(head) if _RNG_STATE.search(head) else None
-    except Exception:  # noqa: BLE001 - a broken simulation: the counts are not known
-        _RNG_COUNTS_AT_CLOSE = None
-    finally:
-        path.unlink(missing_ok=True)
 
 
 @dataclass(frozen=True)
@@ -250,7 +203,8 @@ class SumoSim:
         self._tls_links: dict[tuple[str, int | None], list[tuple[Any, Any]]] | None = None
         self._rng_carry: dict[str, int] | None = {}
         """Per carried generator: its call count minus its draws since this simulation
-        seeded it (:data:`_CARRIED_RNGS`); ``save_state`` subtracts it. None: unknown."""
+        seeded it (:data:`lmpc_bridge.sumo_rng.CARRIED_RNGS`); ``save_state`` subtracts
+        it. None: unknown."""
 
     # --- lifecycle ----------------------------------------------------------------------
     def reset(self, family: str, seed: int, *, max_time_s: float | None = None) -> Observation:
@@ -308,10 +262,10 @@ class SumoSim:
                                f"{[str(p) for p in scene.additional_files]}): {exc}") from None
             self._started = True
             # a fresh simulation: the static generators' counts go on from the last one's
-            # (see _CARRIED_RNGS); unknown, a restart finds them (once, before any step)
-            known = t is not libsumo or _RNG_COUNTS_AT_CLOSE is not None
+            # (see sumo_rng.CARRIED_RNGS); unknown, a restart finds them (once, before any step)
+            known = t is not libsumo or sumo_rng.counts_at_close() is not None
             self._rng_carry = (None if not known else {} if t is not libsumo
-                               else dict(_RNG_COUNTS_AT_CLOSE or {}))
+                               else dict(sumo_rng.counts_at_close() or {}))
             if known or attempt:
                 break
             self.close()
@@ -397,32 +351,15 @@ class SumoSim:
             reached_at_s=self._reached_at_s, max_time_s=self._max_time_s)
 
     def _correct_rng_counts(self, path: Path) -> None:
-        """Rewrite the saved call counts of the static generators as draws since this
-        simulation's seed (what ``--load-state`` replays from a fresh seed): subtract the
-        counts carried from earlier simulations of the process (:data:`_CARRIED_RNGS`)."""
-        carry = self._rng_carry
-        if carry is None:
+        """The saved counts of the static generators as draws since this simulation's
+        seed (:func:`lmpc_bridge.sumo_rng.correct_counts`)."""
+        if self._rng_carry is None:
             raise SimError("cannot save an exact state: SUMO's random number generator "
                            "counts of this process are unknown (docs/BRANCHING.md)")
-        if not any(carry.values()):
-            return
-        text = path.read_text()
-        m = _RNG_STATE.search(text)
-        if m is None:
-            return
-
-        def fix(a: re.Match) -> str:
-            name, value = a.group(1), a.group(2)
-            if name not in carry or not value.isdigit() or len(value) >= 10:
-                return a.group(0)
-            own = int(value) - carry[name]
-            if own < 0:
-                raise SimError(f"SUMO's {name} generator counted {value} calls, fewer than "
-                               f"the {carry[name]} carried from before this simulation")
-            return f'{name}="{own}"'
-
-        fixed = _RNG_ATTR.sub(fix, m.group(1))
-        path.write_text(text[:m.start(1)] + fixed + text[m.end(1):])
+        try:
+            sumo_rng.correct_counts(path, self._rng_carry)
+        except ValueError as exc:
+            raise SimError(str(exc)) from None
 
     def load_state(self, state: "SimState") -> None:
         """Go back to ``state`` (from :meth:`save_state` of this episode): SUMO restarts on
@@ -433,8 +370,7 @@ class SumoSim:
                            "running): branch within one episode, in the process that saved it")
         t = self._traci
         if t is libsumo:
-            global _RNG_COUNTS_AT_CLOSE
-            _RNG_COUNTS_AT_CLOSE = None  # the restored simulation's close() notes them again
+            sumo_rng.forget_counts()  # the restored simulation's close() notes them again
         # SUMO restarted on the state, not ``simulation.loadState`` into the running one: the
         # saved generator states are draw counts, which loadState applies as a discard on
         # the running generators instead of on freshly seeded ones, so the background
@@ -490,11 +426,11 @@ class SumoSim:
     def close(self) -> None:
         """Stop SUMO (safe to call twice). With libsumo, first note the static random
         number generators' call counts, which the next simulation of this process starts
-        from (:data:`_CARRIED_RNGS`)."""
+        from (:data:`lmpc_bridge.sumo_rng.CARRIED_RNGS`)."""
         if self._started:
             try:
                 if self._traci is libsumo:
-                    _note_rng_counts(self._traci, self._work_dir)
+                    sumo_rng.note_counts(self._traci, self._work_dir)
                 self._traci.close()
             finally:
                 self._started = False
