@@ -207,14 +207,11 @@ class MultiSumoSim:
         t.vehicle.setLaneChangeMode(spec.ego_id, 0)
 
     def close(self) -> None:
-        """Stop SUMO; with libsumo, first note the static generators' call counts for the
-        next simulation of this process (``SumoSim.close`` does the same: a single-ego
-        branching run after this one would otherwise start from stale counts)."""
+        """Stop SUMO (``sumo_rng.close_simulation``, as ``SumoSim.close``: a single-ego
+        branching run after this one must not start from stale generator counts)."""
         if self._started:
             try:
-                if self._traci is libsumo:
-                    sumo_rng.note_counts(self._traci, self._work_dir)
-                self._traci.close()
+                sumo_rng.close_simulation(self._traci, self._work_dir)
             finally:
                 self._started = False
 
@@ -252,7 +249,7 @@ class MultiSumoSim:
                 ego.lane = vals.get(tc.VAR_LANE_ID) or None
                 ego.lane_pos_m = float(vals.get(tc.VAR_LANEPOSITION, 0.0))
                 continue
-            s = SumoSim._convert(None, vid, vals)  # type: ignore[arg-type] # uses no state
+            s = SumoSim._convert(vid, vals)
             other = self.egos.get(vid)
             if other is not None:  # another ego: the bridge's exact pose
                 p = other.pose

@@ -429,9 +429,7 @@ class SumoSim:
         from (:data:`lmpc_bridge.sumo_rng.CARRIED_RNGS`)."""
         if self._started:
             try:
-                if self._traci is libsumo:
-                    sumo_rng.note_counts(self._traci, self._work_dir)
-                self._traci.close()
+                sumo_rng.close_simulation(self._traci, self._work_dir)
             finally:
                 self._started = False
 
@@ -510,7 +508,8 @@ class SumoSim:
                                              0.0)
         self._signals = self._read_signals()
 
-    def _convert(self, vid: str, vals: dict[int, Any]) -> _Seen:
+    @staticmethod
+    def _convert(vid: str, vals: dict[int, Any]) -> _Seen:
         is_vehicle = tc.VAR_VEHICLECLASS in vals
         yaw = yaw_from_sumo_angle(float(vals.get(tc.VAR_ANGLE, 90.0)))
         if is_vehicle:

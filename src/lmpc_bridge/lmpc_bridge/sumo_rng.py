@@ -10,6 +10,8 @@ import re
 from pathlib import Path
 from typing import Any
 
+import libsumo
+
 CARRIED_RNGS = ("default", "routeHandler", "device", "device.btreceiver", "driverState",
                 "device.toc")
 """The generators of a state file's ``<rngState>`` that are static in libsumo: a new
@@ -93,3 +95,11 @@ def correct_counts(path: Path, carry: dict[str, int]) -> None:
 
     fixed = _RNG_ATTR.sub(fix, m.group(1))
     path.write_text(text[:m.start(1)] + fixed + text[m.end(1):])
+
+
+def close_simulation(traci: Any, work_dir: Path) -> None:
+    """Close a running simulation; with libsumo, first :func:`note_counts` (what the next
+    simulation of this process starts from). Every simulator of the bridge closes here."""
+    if traci is libsumo:
+        note_counts(traci, work_dir)
+    traci.close()
