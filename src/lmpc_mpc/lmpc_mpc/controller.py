@@ -10,10 +10,11 @@ closest-heading predictions, zero bias).
 
 Fallbacks (RELIABILITY.md): a failed solve uses the shifted previous plan for
 ``shifted_plan_steps`` steps, then brakes at ``vehicle.safe_brake_mps2``, the
-steer ramped towards 0 at the steer-rate limit; stale ego / agents brake at once. A solve over the wall-time budget is a
-failure only in realtime operation (``realtime=True`` or ``enforce_time_budget`` in
-the config); in sync / benchmark runs it is counted (``over_budget``) and used, so the
-same observations give the same controls however loaded the machine is.
+steer ramped towards 0 at the steer-rate limit; stale ego / agents brake at once. A
+solve over the wall-time budget is a failure only in realtime operation
+(``realtime=True`` or ``enforce_time_budget`` in the config); in sync / benchmark
+runs it is counted (``over_budget``) and used, so the same observations give the same
+controls however loaded the machine is.
 """
 from __future__ import annotations
 
