@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, Callable, cast
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -59,10 +59,20 @@ def render_gif(run: RunData, *, out: Path, every_k: int = 3, fps: float = 8.0,
     if every_k < 1:
         raise RenderError(f"every_k must be >= 1, got {every_k}")
     every_k = max(every_k, math.ceil(len(rec.steps) / max_frames))
+    return save_gif_under(
+        out, lambda k, w: _gif_frames(run, every_k=k, width_px=w),
+        every_k=every_k, width_px=width_px, fps=fps, max_bytes=max_bytes)
+
+
+def save_gif_under(out: Path, frames_for: Callable[[int, int], list[Any]], *, every_k: int,
+                   width_px: int, fps: float, max_bytes: int) -> Path:
+    """Write the GIF of ``frames_for(every_k, width_px)`` (PIL images) to ``out``; if it
+    comes out above ``max_bytes``, render again with half the frames and a 0.8x canvas
+    (up to three times), then give up with a :class:`RenderError`."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     for _ in range(4):
-        frames = _gif_frames(run, every_k=every_k, width_px=width_px)
+        frames = frames_for(every_k, width_px)
         frames[0].save(out, save_all=True, append_images=frames[1:],
                        duration=int(round(1000.0 / fps)), loop=0, optimize=True, disposal=1)
         if out.stat().st_size <= max_bytes:

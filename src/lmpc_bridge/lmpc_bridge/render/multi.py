@@ -41,6 +41,7 @@ from lmpc_bridge.render.draw import (
     save_figure,
 )
 from lmpc_bridge.render.geometry import box_corners, lane_polygon, nose
+from lmpc_bridge.render.gif import save_gif_under
 from lmpc_bridge.render.runs import RenderError
 
 EGO_COLOURS = ("#1f5fd6", "#e67e22", "#8e44ad", "#16a085")
@@ -386,9 +387,8 @@ def render_multi_gif(run: MultiRunData, *, out: Path, every_k: int = 4, fps: flo
     if every_k < 1:
         raise RenderError(f"every_k must be >= 1, got {every_k}")
     every_k = max(every_k, math.ceil(last / max_frames))
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    for _ in range(4):
+
+    def frames_for(every_k: int, width_px: int) -> list[Any]:
         steps = list(range(1, last + 1, every_k))
         if steps[-1] != last:
             steps.append(last)
@@ -432,10 +432,7 @@ def render_multi_gif(run: MultiRunData, *, out: Path, every_k: int = 4, fps: flo
             frames.append(Image.fromarray(rgba[..., :3].copy()).quantize(
                 colors=64, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE))
         plt.close(fig)
-        frames[0].save(out, save_all=True, append_images=frames[1:],
-                       duration=int(round(1000.0 / fps)), loop=0, optimize=True, disposal=1)
-        if out.stat().st_size <= max_bytes:
-            return out
-        every_k *= 2
-        width_px = int(width_px * 0.8)
-    raise RenderError(f"{out}: GIF still above {max_bytes} bytes; pass a larger every_k")
+        return frames
+
+    return save_gif_under(out, frames_for, every_k=every_k, width_px=width_px, fps=fps,
+                          max_bytes=max_bytes)
