@@ -9,6 +9,7 @@ needs no model and no network and runs at SUMO + MPC speed.
 """
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -86,20 +87,31 @@ def _controls(result: Any) -> list[tuple]:
              s.v_mps, s.control_mode) for s in result.record.steps]
 
 
-def test_replayed_run_repeats_the_llm_run_exactly(sim: Any, tmp_path: Path) -> None:
+@pytest.mark.parametrize("instruction", [None, "drive aggressively"])
+def test_replayed_run_repeats_the_llm_run_exactly(sim: Any, tmp_path: Path,
+                                                  instruction: str | None) -> None:
+    """Also with the user's instruction (issue 20 item 4): it is part of every prompt,
+    so the replay, given the same text, finds every call by its hash."""
     log = tmp_path / "decisions.jsonl"
     cfg = load_planner_config()
     llm = PlannerCore(cfg, SimulatedLlm(), load_decision_space(), log_path=log)
+    if instruction:
+        llm.on_instruction(instruction)
     first, first_decisions = _episode(sim, llm)
     assert len(first_decisions) >= 4
     assert {d.latency_s for d in first_decisions} == {LATENCY_S, 2 * LATENCY_S}  # re-ask
     assert llm.counters.errors["prose"] == 1
+    records = [json.loads(line) for line in log.read_text().splitlines()]
+    assert records and {r.get("instruction") for r in records} == {instruction}
 
     replay_backend = ReplayBackend(load_replay_log(log), ReplayConfig(latency="report"))
     replay = PlannerCore(cfg, replay_backend, load_decision_space())
+    if instruction:
+        replay.on_instruction(instruction)
     second, second_decisions = _episode(sim, replay)
 
     assert replay_backend.hits["miss"] == 0 and replay_backend.name == "llm:simulated"
+    assert set(replay_backend.hits) == {"hash"}  # every prompt exactly as recorded
     assert [d.model_dump() for d in second_decisions] == [
         d.model_dump() for d in first_decisions]
     assert _controls(second) == _controls(first)
