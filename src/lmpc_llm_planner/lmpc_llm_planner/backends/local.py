@@ -138,13 +138,23 @@ class LocalBackend:
     # -- Backend ---------------------------------------------------------------------------
     def complete(self, request: DecisionRequest) -> BackendReply:
         """Generate the grammar-constrained answer; never raises."""
+        schema = narrow_schema(request, max_reasoning_chars=self.config.max_reasoning_chars)
+        user = compact_prompt(request, schema) if self.config.spell_out_choices \
+            else request.prompt
+        return self.complete_json(SYSTEM_PROMPT, user, schema, deadline_s=request.deadline_s)
+
+    def complete_json(self, system: str, user: str, schema: dict[str, Any], *,
+                      deadline_s: float) -> BackendReply:
+        """``system`` + ``user`` in the chat template, the answer constrained to ``schema``
+        (GBNF), under ``deadline_s``; never raises. Other callers than the planner (the
+        coordinator) use this too."""
         t0 = time.perf_counter()
-        t_end = t0 + request.deadline_s
-        if not self._lock.acquire(timeout=max(request.deadline_s, 0.0)):
+        t_end = t0 + deadline_s
+        if not self._lock.acquire(timeout=max(deadline_s, 0.0)):
             return self._fail(t0, "timeout", "the local model is still busy with an earlier "
-                                             f"call after {request.deadline_s:.1f} s")
+                                             f"call after {deadline_s:.1f} s")
         try:
-            return self._generate(request, t0, t_end)
+            return self._generate(self._chat(system, user), schema, deadline_s, t0, t_end)
         except (ValueError, RuntimeError, KeyError, TypeError) as exc:
             return self._fail(t0, "transport", f"llama.cpp failed: {type(exc).__name__}: {exc}")
         finally:
@@ -153,9 +163,10 @@ class LocalBackend:
     def chat_prompt(self, request: DecisionRequest, *, user_text: Optional[str] = None
                     ) -> ChatPrompt:
         """System + user message (default ``request.prompt``) in the model's chat template."""
-        messages = [{"role": "system", "content": SYSTEM_PROMPT},
-                    {"role": "user", "content": request.prompt if user_text is None
-                     else user_text}]
+        return self._chat(SYSTEM_PROMPT, request.prompt if user_text is None else user_text)
+
+    def _chat(self, system: str, user: str) -> ChatPrompt:
+        messages = [{"role": "system", "content": system}, {"role": "user", "content": user}]
         out = self._formatter(messages=messages)
         stop = out.stop if isinstance(out.stop, list) else [out.stop] if out.stop else []
         return ChatPrompt(text=out.prompt, stop=tuple(s for s in stop if s))
@@ -166,10 +177,8 @@ class LocalBackend:
         return list(self.llama.tokenize(text.encode("utf-8"), special=True))
 
     # -- internals -------------------------------------------------------------------------
-    def _generate(self, request: DecisionRequest, t0: float, t_end: float) -> BackendReply:
-        schema = narrow_schema(request, max_reasoning_chars=self.config.max_reasoning_chars)
-        user_text = compact_prompt(request, schema) if self.config.spell_out_choices else None
-        prompt = self.chat_prompt(request, user_text=user_text)
+    def _generate(self, prompt: ChatPrompt, schema: dict[str, Any], deadline_s: float,
+                  t0: float, t_end: float) -> BackendReply:
         tokens = self.tokenize(prompt.text)
         tokens_in = len(tokens)
         budget = self.config.n_ctx - tokens_in
@@ -187,7 +196,7 @@ class LocalBackend:
         for i in range(0, tokens_in, step):
             if time.perf_counter() > t_end:
                 return self._fail(t0, "timeout", f"prompt evaluation stopped at the "
-                                                 f"{request.deadline_s:.1f} s deadline "
+                                                 f"{deadline_s:.1f} s deadline "
                                                  f"({i} of {tokens_in} tokens)")
             self.llama.eval(tokens[i:i + step])
         stream = self.llama.create_completion(
@@ -203,7 +212,7 @@ class LocalBackend:
                 tokens_out += 1
                 if time.perf_counter() > t_end:
                     return self._fail(t0, "timeout", f"generation stopped at the "
-                                                     f"{request.deadline_s:.1f} s deadline "
+                                                     f"{deadline_s:.1f} s deadline "
                                                      f"after {tokens_out} tokens")
         finally:
             close = getattr(stream, "close", None)

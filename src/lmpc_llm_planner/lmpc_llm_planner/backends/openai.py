@@ -49,7 +49,7 @@ import threading
 import time
 import urllib.parse
 from dataclasses import dataclass
-from typing import Any, Literal, Mapping, Optional
+from typing import Any, Callable, Literal, Mapping, Optional
 
 from lmpc_llm_planner.backends.base import BackendError, BackendReply, DecisionRequest
 from lmpc_llm_planner.backends.constrain import (
@@ -242,19 +242,34 @@ class OpenAIBackend:
     # -- Backend ---------------------------------------------------------------------------
     def complete(self, request: DecisionRequest) -> BackendReply:
         """One chat completion under ``request.deadline_s``; never raises."""
-        t0 = time.perf_counter()
-        t_end = t0 + request.deadline_s
         schema = (
             narrow_schema(request, max_reasoning_chars=self.config.max_reasoning_chars)
             if self.config.narrow_schema else dict(request.json_schema)
         )
+        # The compact answer form (offered choices, the reasoning cap) also guides a model
+        # the server does not constrain (plain json_object / none).
+        user = compact_prompt(request, schema) if self.config.spell_out_choices \
+            else request.prompt
+        return self.complete_json(
+            SYSTEM_PROMPT, user, schema, deadline_s=request.deadline_s,
+            valid=lambda text: parse_decision(text, request=request).error_kind is None)
+
+    def complete_json(self, system: str, user: str, schema: Mapping[str, Any], *,
+                      deadline_s: float,
+                      valid: Optional[Callable[[str], bool]] = None) -> BackendReply:
+        """One chat completion of ``system`` + ``user`` whose answer must match ``schema``
+        (in the negotiated structured-output form), under ``deadline_s``; never raises.
+        ``valid(text)``: whether an answer is valid, so its form can be kept for the run
+        (other callers than the planner, e.g. the coordinator, use this too)."""
+        t0 = time.perf_counter()
+        t_end = t0 + deadline_s
         with self._lock:
             fmt = self._format
         formats = FORMS[FORMS.index(fmt):] if self._negotiate else (fmt,)
         refusals: list[str] = []
         try:
             for fmt in formats:
-                status, body = self._post(self._payload(request, fmt, schema), t_end)
+                status, body = self._post(self._payload(system, user, fmt, schema), t_end)
                 if status != 200 and fmt != formats[-1] and refuses_format(status, body):
                     refusals.append(f"{fmt}: HTTP {status} {self._excerpt(body)}")
                     continue
@@ -267,15 +282,15 @@ class OpenAIBackend:
                 if refusals:
                     self._step_down(fmt, refusals)
                 reply = self._reply(body, t0)
-                if reply.ok:
-                    self._confirm(fmt, reply.text or "", request)
+                if reply.ok and valid is not None and valid(reply.text or ""):
+                    self._confirm(fmt)
                 return reply
         except _Deadline:
             return self._fail(t0, "timeout", f"no complete reply from {self.endpoint.url} "
-                                             f"within the {request.deadline_s:.1f} s deadline")
+                                             f"within the {deadline_s:.1f} s deadline")
         except socket.timeout:
             return self._fail(t0, "timeout", f"no complete reply from {self.endpoint.url} "
-                                             f"within the {request.deadline_s:.1f} s deadline")
+                                             f"within the {deadline_s:.1f} s deadline")
         except (OSError, http.client.HTTPException) as exc:
             return self._fail(t0, "transport",
                               f"{type(exc).__name__} talking to {self.endpoint.url}: "
@@ -291,16 +306,12 @@ class OpenAIBackend:
         return need if cap is None else min(need, cap)
 
     # -- internals -------------------------------------------------------------------------
-    def _payload(self, request: DecisionRequest, fmt: ResponseFormat,
+    def _payload(self, system: str, user: str, fmt: ResponseFormat,
                  schema: Mapping[str, Any]) -> dict[str, Any]:
-        # The compact answer form (offered choices, the reasoning cap) also guides a model
-        # the server does not constrain (plain json_object / none).
-        user = compact_prompt(request, schema) if self.config.spell_out_choices \
-            else request.prompt
         payload: dict[str, Any] = {
             "model": self.model,
             "messages": [
-                {"role": "system", "content": SYSTEM_PROMPT},
+                {"role": "system", "content": system},
                 {"role": "user", "content": user},
             ],
             "temperature": self.config.temperature,
@@ -387,12 +398,11 @@ class OpenAIBackend:
         LOG.warning("openai backend: %s refused (%s); trying response form %s from now on",
                     self.endpoint.url, "; ".join(refusals), fmt)
 
-    def _confirm(self, fmt: ResponseFormat, text: str, request: DecisionRequest) -> None:
-        """Keep ``fmt`` for the run once it gave a valid answer (and say so, once)."""
+    def _confirm(self, fmt: ResponseFormat) -> None:
+        """Keep ``fmt`` for the run once it gave a valid answer (and say so, once); an
+        invalid answer is the model's fault or the form's: not proof that the form works."""
         if self._confirmed is not None:
             return
-        if parse_decision(text, request=request).error_kind is not None:
-            return  # the model's fault or the form's: not proof that the form works
         with self._lock:
             if self._confirmed is not None:
                 return
