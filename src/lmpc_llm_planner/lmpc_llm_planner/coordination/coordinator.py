@@ -10,15 +10,16 @@ and counted (``refused``), never delivered.
 Backends (``make_coordinator_backend``):
 - ``rules``: the fixed rule set of ``coordination.rules`` with a memory of which
   direction holds each conflict;
-- ``openai`` / ``local`` / ``replay``: NOT implemented. The extension point is the
-  :class:`CoordinatorBackend` protocol: ``verdicts(statuses, now_s)`` returns the same
-  :class:`Verdict` list an LLM's answer would be parsed into (a prompt from the statuses'
-  JSON, a JSON answer validated like the planner's). Asking for one raises ``ValueError``.
+- ``openai`` / ``local``: an LLM asked with the egos' statuses, its JSON answer
+  validated (an unsafe or invalid answer is a silent round); ``replay``: a recorded LLM
+  coordination answered again from its log (``coordination.llm``). The extension point is
+  the :class:`CoordinatorBackend` protocol: ``verdicts(statuses, now_s)``.
 """
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Optional, Protocol
+from pathlib import Path
+from typing import Any, Optional, Protocol
 
 from lmpc_msgs_py.codec import DecodeError, decode, encode
 from lmpc_msgs_py.coordination import Directive, EgoStatus, SpeedBand
@@ -59,13 +60,31 @@ class SilentCoordinator:
         return []
 
 
-def make_coordinator_backend(name: str) -> CoordinatorBackend:
+def make_coordinator_backend(name: str, *, planner_config: Any = None,
+                             log_path: Optional[Path] = None,
+                             replay_log: Optional[Path] = None) -> CoordinatorBackend:
+    """The backend ``name``. ``openai`` / ``local`` take their endpoint / model settings
+    from ``planner_config`` (a ``PlannerConfig``; default: the packaged one) and write
+    their calls to ``log_path``; ``replay`` answers from ``replay_log`` (such a log)."""
     if name == "rules":
         return RulesCoordinator()
-    if name in BACKENDS:
-        raise ValueError(f"coordinator backend {name!r} is not implemented yet (only 'rules'; "
-                         f"docs/MULTI.md lists what it needs)")
-    raise ValueError(f"unknown coordinator backend {name!r}; choose from {', '.join(BACKENDS)}")
+    if name not in BACKENDS:
+        raise ValueError(f"unknown coordinator backend {name!r}; choose from "
+                         f"{', '.join(BACKENDS)}")
+    from lmpc_llm_planner.coordination import llm
+
+    if name == "replay":
+        if replay_log is None:
+            raise ValueError("coordinator backend 'replay' needs the log of a recorded LLM "
+                             "coordination (coordinator.jsonl)")
+        return llm.ReplayCoordinator(replay_log)
+    if planner_config is None:
+        from lmpc_llm_planner.config import load_planner_config
+
+        planner_config = load_planner_config()
+    if name == "openai":
+        return llm.openai_coordinator(planner_config.openai, log_path=log_path)
+    return llm.local_coordinator(planner_config.local, log_path=log_path)
 
 
 class CoordinatorCore:
