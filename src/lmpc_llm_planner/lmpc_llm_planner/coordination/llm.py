@@ -67,13 +67,14 @@ def participants(statuses: Sequence[EgoStatus]) -> list[EgoStatus]:
                   key=lambda st: st.ego_id)
 
 
-def coordinator_schema(egos: Sequence[EgoStatus]) -> dict[str, Any]:
+def coordinator_schema(egos: Sequence[EgoStatus], *,
+                       max_reasoning_chars: int = MAX_REASONING_CHARS) -> dict[str, Any]:
     """The answer's JSON schema for a round with ``egos`` (their ids as an enum)."""
     ids = [st.ego_id for st in egos]
     return {
         "type": "object",
         "properties": {
-            "reasoning": {"type": "string", "maxLength": MAX_REASONING_CHARS},
+            "reasoning": {"type": "string", "maxLength": max_reasoning_chars},
             "verdicts": {
                 "type": "array", "minItems": len(ids), "maxItems": len(ids),
                 "items": {
@@ -108,7 +109,8 @@ def _line(st: EgoStatus) -> str:
             f"following it in: {follows}.")
 
 
-def coordinator_prompt(egos: Sequence[EgoStatus], now_s: float) -> str:
+def coordinator_prompt(egos: Sequence[EgoStatus], now_s: float, *,
+                       max_reasoning_chars: int = MAX_REASONING_CHARS) -> str:
     """The user message of a round (see the module docstring)."""
     lines = [f"Time {now_s:.1f} s. Cars in a shared conflict:", *(_line(st) for st in egos),
              "",
@@ -116,7 +118,7 @@ def coordinator_prompt(egos: Sequence[EgoStatus], now_s: float) -> str:
              "cannot stop before its hold point must proceed; give the conflict to the "
              "direction of the car that is committed or nearest to the entry; a car yields "
              "while another vehicle comes against it. Priority 0 goes first.",
-             f"Answer: {{\"reasoning\": \"<at most {MAX_REASONING_CHARS} characters>\", "
+             f"Answer: {{\"reasoning\": \"<at most {max_reasoning_chars} characters>\", "
              "\"verdicts\": [{\"ego_id\": \"<id>\", \"command\": \"proceed\" or \"yield\", "
              "\"priority\": <0 = first>}, ...]} with one verdict for each car above."]
     return "\n".join(lines)
@@ -170,8 +172,10 @@ class LlmCoordinator:
     """A coordinator backend that asks an LLM (see the module docstring)."""
 
     def __init__(self, ask: Ask, name: str, *, deadline_s: float = DEADLINE_S,
-                 log_path: Optional[Path] = None) -> None:
+                 log_path: Optional[Path] = None,
+                 max_reasoning_chars: int = MAX_REASONING_CHARS) -> None:
         self.ask = ask
+        self.max_reasoning_chars = max_reasoning_chars
         self.name = name
         self.deadline_s = deadline_s
         self.log_path = Path(log_path) if log_path is not None else None
@@ -186,8 +190,10 @@ class LlmCoordinator:
         egos = participants(statuses)
         if not egos:
             return []
-        prompt = coordinator_prompt(egos, now_s)
-        reply = self.ask(SYSTEM_PROMPT, prompt, coordinator_schema(egos), self.deadline_s)
+        cap = self.max_reasoning_chars
+        prompt = coordinator_prompt(egos, now_s, max_reasoning_chars=cap)
+        reply = self.ask(SYSTEM_PROMPT, prompt,
+                         coordinator_schema(egos, max_reasoning_chars=cap), self.deadline_s)
         self.calls += 1
         error, out = "", []
         if not reply.ok:
@@ -201,7 +207,8 @@ class LlmCoordinator:
                 self.errors["invalid"] += 1
         if error:
             self.last_error = error
-        self._log({"stamp_s": now_s, "source": self.name, "prompt": prompt,
+        self._log({"stamp_s": now_s, "source": self.name, "max_reasoning_chars": cap,
+                   "prompt": prompt,
                    "prompt_sha256": _sha(prompt), "text": reply.text, "error": error,
                    "latency_s": round(reply.latency_s, 4)})
         return out
@@ -228,17 +235,22 @@ class ReplayCoordinator:
             raise BackendError(f"replay coordinator: cannot read {path}: {exc}") from None
         self._answers: dict[str, list[Optional[str]]] = {}
         sources: Counter[str] = Counter()
+        caps: Counter[int] = Counter()
         for line in lines:
             try:
                 rec = json.loads(line)
                 sha, text = str(rec["prompt_sha256"]), rec.get("text")
+                cap = int(rec.get("max_reasoning_chars", MAX_REASONING_CHARS))
             except (ValueError, KeyError, TypeError):
                 continue  # not a record of this log
             self._answers.setdefault(sha, []).append(text)
             sources[str(rec.get("source", "replay"))] += 1
+            caps[cap] += 1
         if not self._answers:
             raise BackendError(f"replay coordinator: {path} holds no coordinator records")
         self.name = sources.most_common(1)[0][0]
+        self.max_reasoning_chars = caps.most_common(1)[0][0]
+        """The recorded prompts' reasoning cap (part of the prompt, so of its hash)."""
         self._used: Counter[str] = Counter()
         self.misses = 0
 
@@ -246,7 +258,8 @@ class ReplayCoordinator:
         egos = participants(statuses)
         if not egos:
             return []
-        sha = _sha(coordinator_prompt(egos, now_s))
+        sha = _sha(coordinator_prompt(egos, now_s,
+                                      max_reasoning_chars=self.max_reasoning_chars))
         answers = self._answers.get(sha)
         if not answers:
             self.misses += 1
@@ -286,7 +299,8 @@ def local_coordinator(config: Any, *, log_path: Optional[Path] = None,
     return LlmCoordinator(
         lambda system, user, schema, deadline: model.complete_json(
             system, user, schema, deadline_s=deadline),
-        model.name, deadline_s=deadline_s, log_path=log_path)
+        model.name, deadline_s=deadline_s, log_path=log_path,
+        max_reasoning_chars=config.max_reasoning_chars)
 
 
 __all__ = ["LlmCoordinator", "ReplayCoordinator", "coordinator_prompt",
