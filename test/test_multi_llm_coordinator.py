@@ -9,6 +9,7 @@ fall back to the distributed rule set.
 """
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 from pathlib import Path
@@ -169,3 +170,49 @@ def test_the_backends_by_name(tmp_path: Path) -> None:
             make_coordinator_backend("openai")
     finally:
         os.environ.update({k: v for k, v in saved.items() if v is not None})
+
+
+class PromptRecorder:
+    """A SIMULATED LLM planner backend: the rules' answer; keeps every prompt."""
+
+    name = "llm:recorder"
+    reports_latency = False
+
+    def __init__(self) -> None:
+        from lmpc_llm_planner.backends.rules import RulesBackend
+
+        self.rules = RulesBackend()
+        self.prompts: list[str] = []
+
+    def complete(self, request: Any) -> BackendReply:
+        self.prompts.append(request.prompt)
+        return self.rules.complete(request)
+
+
+def test_an_llm_planner_reads_the_coordinators_command_in_its_prompt(tmp_path: Path) -> None:
+    from lmpc_bridge.multi_episode import run_multi_episode
+    from lmpc_bridge.multi_scene import ego_specs
+    from lmpc_bridge.multi_sim import MultiSumoSim
+    from lmpc_bridge.scenarios import build_scene
+    from lmpc_llm_planner.config import load_planner_config
+    from lmpc_llm_planner.planner import PlannerCore
+    from lmpc_msgs_py.vocabulary import load_decision_space
+
+    ids = [s.ego_id for s in ego_specs(build_scene("narrow", 101, work_dir=tmp_path))]
+    egos, coordination = multi.wire("lmpc-rules", ids, "central")
+    backends = {eid: PromptRecorder() for eid in ids}
+    logs = {eid: tmp_path / f"{eid}.jsonl" for eid in ids}
+    egos = {eid: dataclasses.replace(w, planner=PlannerCore(
+        load_planner_config(), backends[eid], load_decision_space(), log_path=logs[eid]))
+        for eid, w in egos.items()}
+    result = run_multi_episode(MultiSumoSim(work_dir=tmp_path), family="narrow", seed=101,
+                               egos=egos, coordination=coordination, max_time_s=120.0)
+    assert result.ego_collisions == 0 and result.all_reached
+    told = {eid: [p for p in b.prompts if "Coordinator's command" in p]
+            for eid, b in backends.items()}
+    assert any("yield at" in p for ps in told.values() for p in ps), "nobody was told to yield"
+    assert any("proceed at" in p for ps in told.values() for p in ps)
+    assert all(any("Coordinator's command" not in p for p in b.prompts)
+               for b in backends.values())  # and without a command in force, no such line
+    records = [json.loads(line) for eid in ids for line in logs[eid].read_text().splitlines()]
+    assert {r["command"] is not None for r in records} == {True, False}

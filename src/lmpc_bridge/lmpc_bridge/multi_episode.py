@@ -141,6 +141,7 @@ def run_multi_episode(sim: MultiSumoSim, *, family: str, seed: int,
     last_decision: dict[str, Optional[str]] = {eid: None for eid in egos}
     marks: dict[str, list[EgoMark]] = {eid: [] for eid in egos}
     marks_of = getattr(coordination, "marks", None)
+    command_of = getattr(coordination, "command_text", None)
     while sim.running:
         running = sim.running_ids()
         obs = {eid: sim.observe(eid, required_decision_id=last_decision[eid])
@@ -169,6 +170,8 @@ def run_multi_episode(sim: MultiSumoSim, *, family: str, seed: int,
             controls[eid] = control
             if wiring.planner is None:
                 continue
+            if command_of is not None and hasattr(wiring.planner, "on_command"):
+                wiring.planner.on_command(command_of(eid, sim.time_s))  # LLM prompt text
             try:
                 decision = wiring.planner.on_observation(obs[eid])
             except Exception:  # noqa: BLE001

@@ -192,12 +192,13 @@ def build_request(
     previous: Optional[Decision] = None,
     retry_error: Optional[str] = None,
     prior_stages: Optional[dict[str, Any]] = None,
+    command: Optional[str] = None,
 ) -> DecisionRequest:
     """The request for one backend call: prompt text plus the structured inputs."""
     prompt = build_prompt(
         scene, space=space, mode=mode, stage=stage, instruction=instruction,
         previous=previous, retry_error=retry_error, prior_stages=prior_stages or None,
-        chars_per_token=config.chars_per_token,
+        chars_per_token=config.chars_per_token, command=command,
     )
     return DecisionRequest(
         prompt=prompt.text, mode=mode, scene=scene,
@@ -228,6 +229,7 @@ class PlannerCore:
         """The decision space the planner offers and its Decisions name (by hash)."""
         self.counters = PlannerCounters()
         self.instruction: Optional[str] = None
+        self.command: Optional[str] = None
         self.last_decision: Optional[Decision] = None
         self.last_emergency: EmergencyCheck = EmergencyCheck(False)
         self._t_last_request: Optional[float] = None
@@ -261,6 +263,12 @@ class PlannerCore:
                 fh.truncate(snap.log_bytes or 0)
 
     # -- inputs ---------------------------------------------------------------------------
+    def on_command(self, text: Optional[str]) -> None:
+        """The coordinator's command in force for this ego, in words (None: none); an LLM
+        backend reads it in its prompt (issue 18), the rules backend acts on the
+        coordination's hold obstacle and speed band instead."""
+        self.command = text or None
+
     def on_instruction(self, text: str) -> None:
         """Store the user's instruction (untrusted text: it only goes into the prompt)."""
         cleaned = sanitize_instruction(text)
@@ -364,7 +372,7 @@ class PlannerCore:
             request = build_request(
                 scene, config=self.config, space=self.space, mode=mode, stage=stage,
                 instruction=self.instruction, previous=self.last_decision,
-                retry_error=retry_error, prior_stages=prior,
+                retry_error=retry_error, prior_stages=prior, command=self.command,
             )
             self.counters.backend_calls += 1
             reply = _call_with_deadline(self.backend, request, self.config.deadline_s)
@@ -453,6 +461,8 @@ class PlannerCore:
             # the user's text in force for this decision (sanitized; None: no instruction):
             # one given mid-episode shows from the first decision after it
             "instruction": self.instruction,
+            # the coordinator's command in force (multi-ego runs; None: none)
+            "command": self.command,
             "attempts": [a.__dict__ for a in attempts],
             "error_kind": None if wire is not None else (
                 attempts[-1].error_kind if attempts else "none"

@@ -48,7 +48,7 @@ class Command:
     directive_id: str
 
     def text(self) -> str:
-        """The command in words (what an LLM backend's prompt would carry)."""
+        """The command in words (an LLM planner's prompt carries it: ``on_command``)."""
         band = "" if self.speed_band is None else (
             f", speed {self.speed_band.min_mps:.0f}-{self.speed_band.max_mps:.0f} m/s")
         return f"{self.command} at {self.conflict_id}{band} until t={self.deadline_s:.1f} s"

@@ -123,6 +123,12 @@ class Coordination:
             deadline_s=now_s + DISTRIBUTED_TTL_S, source="distributed",
             directive_id=f"dist-{eid}-{v.command}"))
 
+    def command_text(self, ego_id: str, now_s: float) -> Optional[str]:
+        """The command in force for ``ego_id`` in words (``Command.text``; None: none): what
+        an LLM planner's prompt carries (``PlannerCore.on_command``)."""
+        cmd = self.egos[ego_id].in_force(now_s)
+        return None if cmd is None else cmd.text()
+
     def shape(self, ego_id: str, decision: Optional[Decision],
               obs: Observation) -> Optional[Decision]:
         """The ego's new decision with its command's speed band taken in."""
