@@ -21,7 +21,7 @@ from typing import Any, Optional
 
 from lmpc_scripts.methods import make_planner
 
-MULTI_FAMILIES = ("narrow",)
+MULTI_FAMILIES = ("narrow", "usi-multi", "merge")
 """Families whose scenes carry several egos (``params["egos"]``)."""
 MODES = ("none", "distributed", "central")
 MULTI_METHODS = ("mpc", "lmpc-rules")
