@@ -29,8 +29,8 @@ MULTI_METHODS = ("mpc", "lmpc-rules")
 ROW_FIELDS = (
     "family", "seed", "method", "coordination", "egos", "reached", "ego_collisions",
     "other_collisions", "deadlock", "timeouts", "clear_s", "joint_oc", "end_s",
-    "directives", "directives_refused", "hold_steps", "silent_steps", "wall_s", "per_ego",
-    "detail")
+    "directives", "directives_refused", "hold_steps", "silent_steps", "min_gap_m", "wall_s",
+    "per_ego", "detail")
 
 _SOLVERS: list[Any] = []
 
@@ -76,11 +76,26 @@ def wire(method: str, ego_ids: list[str], mode: str, *, coordinator_backend: str
     return egos, coordination
 
 
+def closest_approach_m(result: Any) -> Optional[float]:
+    """The smallest centre-to-centre distance of two egos at the same step (the egos'
+    records; None without records): how close the egos came to each other."""
+    import math
+
+    steps: dict[int, list[tuple[float, float]]] = {}
+    for rec in getattr(result, "records", {}).values():
+        for s in rec.steps:
+            steps.setdefault(s.step, []).append((s.x_m, s.y_m))
+    gaps = [math.dist(a, b) for pts in steps.values()
+            for i, a in enumerate(pts) for b in pts[i + 1:]]
+    return min(gaps) if gaps else None
+
+
 def result_row(result: Any, method: str, mode: str, wall_s: float) -> dict[str, Any]:
     per_ego = {e.ego_id: {"outcome": e.outcome, "time_s": round(e.metrics.time_s, 3),
                           "oc": round(e.metrics.overall_cost, 4),
                           "collided_with": e.collided_with} for e in result.egos}
     st = result.stats
+    gap = closest_approach_m(result)
     return {
         "family": result.family, "seed": result.seed, "method": method, "coordination": mode,
         "egos": len(result.egos), "reached": sum(e.outcome == "reached" for e in result.egos),
@@ -92,6 +107,7 @@ def result_row(result: Any, method: str, mode: str, wall_s: float) -> dict[str, 
         "directives": st.get("directives", 0),
         "directives_refused": st.get("directives_refused", 0),
         "hold_steps": st.get("hold_steps", 0), "silent_steps": st.get("silent_steps", 0),
+        "min_gap_m": "" if gap is None else round(gap, 2),
         "wall_s": round(wall_s, 2),
         "per_ego": json.dumps(per_ego, sort_keys=True),
         "detail": "; ".join(f"{e.ego_id}: {e.detail}" for e in result.egos if e.detail)[:500]}
@@ -156,14 +172,16 @@ def multi_table_md(path: Path) -> str:
         groups.setdefault((r["family"], r["method"], r["coordination"]), []).append(r)
     lines = ["| family | method | coordination | scenes | all through | ego-ego collisions "
              "| collisions with others | deadlocks | egos timed out | errors "
-             "| time to clear, s (mean, all through) | joint O.C. (mean) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| time to clear, s (mean, all through) | joint O.C. (mean) "
+             "| closest egos, m (min / median) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for (family, method, mode), rs in groups.items():
         ok = [r for r in rs if r.get("reached") not in (None, "")]
         errors = len(rs) - len(ok)
         through = [r for r in ok if r["reached"] == r["egos"]]
         clear = [float(r["clear_s"]) for r in through if r["clear_s"]]
         occ = [float(r["joint_oc"]) for r in ok]
+        gaps = sorted(float(r["min_gap_m"]) for r in ok if r.get("min_gap_m"))
         lines.append(
             f"| {family} | {method} | {mode} | {len(rs)} | {len(through)} "
             f"| {sum(int(r['ego_collisions']) for r in ok)} "
@@ -171,8 +189,17 @@ def multi_table_md(path: Path) -> str:
             f"| {sum(int(r['deadlock']) for r in ok)} "
             f"| {sum(int(r['timeouts']) for r in ok)} | {errors} "
             f"| {sum(clear) / len(clear) if clear else float('nan'):.1f} "
-            f"| {sum(occ) / len(occ) if occ else float('nan'):.1f} |")
+            f"| {sum(occ) / len(occ) if occ else float('nan'):.1f} "
+            f"| {_gaps(gaps)} |")
     return "\n".join(lines) + "\n"
+
+
+def _gaps(gaps: list[float]) -> str:
+    if not gaps:
+        return "-"
+    n = len(gaps)
+    median = gaps[n // 2] if n % 2 else (gaps[n // 2 - 1] + gaps[n // 2]) / 2.0
+    return f"{gaps[0]:.1f} / {median:.1f}"
 
 
 def _seeds(text: str) -> list[int]:

@@ -42,7 +42,7 @@ ARMS = ("E", "N", "W", "S")
 """Counter-clockwise around the junction (angles 0, 90, 180, 270 degrees)."""
 TURNS = {"right": 1, "straight": 2, "left": 3}
 """Arm offset (counter-clockwise) of the exit for each turn."""
-MEET_S = 3.0
+MEET_S = 2.0
 TARGET_INTO_EXIT_M = 40.0
 TARGET_RADIUS_M = 5.0
 MIN_DIST_M, MAX_DIST_M = 25.0, 130.0
