@@ -18,9 +18,9 @@ Differences from ``SumoSim`` (documented in docs/MULTI.md):
   2): in the taper before a one-lane section the other direction's lane lies 1.6 m away
   and SUMO put the ego there (its drivers then did not see it; narrow seed 6). The
   bridge's own pose stays exact; no route watch (``off_route``), no ``save_state``;
-- the affected vehicles of ``ineff`` are the ego's SUMO follower and the vehicles whose
-  leader it is (no junction-foe rule: the families have no junction conflicts but the
-  shared section, which the egos resolve among themselves);
+- the affected vehicles of ``ineff`` follow the same rules as for the single ego
+  (``lmpc_bridge.participants``: follower, leader, yielding junction foe; other egos
+  included);
 - in an ego's observation the other egos carry the bridge's exact poses.
 """
 from __future__ import annotations
@@ -49,30 +49,29 @@ from lmpc_msgs_py.observation import Observation
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 from lmpc_bridge.dynamics import EgoPose, clamp_control, step_bicycle
-from lmpc_bridge.geometry import OrientedBox, box_gap_m, boxes_overlap
+from lmpc_bridge.geometry import OrientedBox, boxes_overlap
 from lmpc_bridge.mapping import RouteGeometry, build_map, read_net
 from lmpc_bridge.metrics import compute_metrics
 from lmpc_bridge import sumo_rng
 from lmpc_bridge.multi_scene import EgoSpec, ego_scene, ego_specs
-from lmpc_bridge.record import EpisodeRecord, NearbyVehicle, StepRecord
+from lmpc_bridge.record import EpisodeRecord, StepRecord
 from lmpc_bridge.scenarios import Scene, SceneError, build_scene
-from lmpc_bridge.sim import (
-    _PERSON_VARS,
-    _SIG_BRAKE,
-    _SIG_LEFT,
-    _SIG_RIGHT,
-    _VEHICLE_VARS,
-    AFFECTED_RADIUS_M,
-    CONTROL_STALE_S,
-    DT_S,
+from lmpc_bridge.participants import (
     MAX_AGENT_ACCEL_MPS2,
-    SimError,
-    SumoSim,
-    _clip,
-    _Seen,
+    PERSON_VARS,
+    SIG_BRAKE,
+    SIG_LEFT,
+    SIG_RIGHT,
+    VEHICLE_VARS,
+    Seen,
+    clip,
+    convert,
+    foes_query_ok,
+    nearby_records,
     sumo_angle_from_yaw,
     yaw_from_sumo_angle,
 )
+from lmpc_bridge.sim import CONTROL_STALE_S, DT_S, SimError
 
 DEADLOCK_S = 10.0
 DEADLOCK_SPEED_MPS = 0.1
@@ -87,7 +86,7 @@ class EgoRun:
     map: MapSnapshot
     route: RouteGeometry
     pose: EgoPose
-    seen: dict[str, _Seen] = field(default_factory=dict)
+    seen: dict[str, Seen] = field(default_factory=dict)
     history: dict[str, deque] = field(default_factory=dict)
     lane: Optional[str] = None
     lane_pos_m: float = 0.0
@@ -98,6 +97,8 @@ class EgoRun:
     detail: str = ""
     collided_with: Optional[str] = None
     reached_at_s: Optional[float] = None
+    foes_query: bool = True
+    """Ask SUMO for the ego's junction foes (``participants.foes_query_ok``)."""
 
     @property
     def ego_id(self) -> str:
@@ -184,12 +185,13 @@ class MultiSumoSim:
             half = self._vehicle.length_m / 2.0
             pose = EgoPose(x_m=fx - half * math.cos(yaw), y_m=fy - half * math.sin(yaw),
                            yaw_rad=yaw, v_mps=spec.depart_speed_mps)
-            self.egos[spec.ego_id] = EgoRun(spec=spec, scene=view, map=mp, route=route,
-                                            pose=pose)
+            self.egos[spec.ego_id] = EgoRun(
+                spec=spec, scene=view, map=mp, route=route, pose=pose,
+                foes_query=foes_query_ok(net, spec.route_edges))
             for domain in (tc.CMD_GET_VEHICLE_VARIABLE, tc.CMD_GET_PERSON_VARIABLE):
                 t.vehicle.subscribeContext(spec.ego_id, domain, self._range_m,
-                                           list(_VEHICLE_VARS if domain ==
-                                                tc.CMD_GET_VEHICLE_VARIABLE else _PERSON_VARS))
+                                           list(VEHICLE_VARS if domain ==
+                                                tc.CMD_GET_VEHICLE_VARIABLE else PERSON_VARS))
         for ego in self.egos.values():
             self._refresh(ego)
             hit = self._collision(ego)
@@ -241,7 +243,7 @@ class MultiSumoSim:
     def _refresh(self, ego: EgoRun) -> None:
         t = self._traci
         results = t.vehicle.getContextSubscriptionResults(ego.ego_id) or {}
-        seen: dict[str, _Seen] = {}
+        seen: dict[str, Seen] = {}
         for vid, vals in results.items():
             if tc.VAR_POSITION not in vals:
                 continue
@@ -249,23 +251,23 @@ class MultiSumoSim:
                 ego.lane = vals.get(tc.VAR_LANE_ID) or None
                 ego.lane_pos_m = float(vals.get(tc.VAR_LANEPOSITION, 0.0))
                 continue
-            s = SumoSim._convert(vid, vals)
+            s = convert(vid, vals)
             other = self.egos.get(vid)
             if other is not None:  # another ego: the bridge's exact pose
                 p = other.pose
-                s = _Seen(id=vid, kind="car", x_m=p.x_m, y_m=p.y_m, yaw_rad=p.yaw_rad,
-                          v_mps=p.v_mps, a_mps2=_clip(p.a_mps2, -MAX_AGENT_ACCEL_MPS2,
-                                                      MAX_AGENT_ACCEL_MPS2),
-                          length_m=self._vehicle.length_m, width_m=self._vehicle.width_m,
-                          lane_id=s.lane_id, lane_pos_m=s.lane_pos_m, signals=s.signals,
-                          v_max_mps=s.v_max_mps)
+                s = Seen(id=vid, kind="car", x_m=p.x_m, y_m=p.y_m, yaw_rad=p.yaw_rad,
+                         v_mps=p.v_mps, a_mps2=clip(p.a_mps2, -MAX_AGENT_ACCEL_MPS2,
+                                                    MAX_AGENT_ACCEL_MPS2),
+                         length_m=self._vehicle.length_m, width_m=self._vehicle.width_m,
+                         lane_id=s.lane_id, lane_pos_m=s.lane_pos_m, signals=s.signals,
+                         v_max_mps=s.v_max_mps)
             seen[vid] = s
         ego.seen = seen
         now = self.time_s
         for vid, s in seen.items():
             hist = ego.history.setdefault(vid, deque(maxlen=self._history_len))
             hist.append(HistoryPoint(t_s=now, x_m=s.x_m, y_m=s.y_m,
-                                     v_mps=_clip(s.v_mps, 0.0, 70.0)))
+                                     v_mps=clip(s.v_mps, 0.0, 70.0)))
         for vid in list(ego.history):
             if vid not in seen:
                 del ego.history[vid]
@@ -287,19 +289,19 @@ class MultiSumoSim:
         now, seq, p = self.time_s, self._step_index, ego.pose
         state = EgoState(
             stamp_s=now, seq=seq, x_m=p.x_m, y_m=p.y_m, yaw_rad=p.yaw_rad,
-            v_mps=_clip(p.v_mps, 0.0, 70.0),
-            a_mps2=_clip(p.a_mps2, -MAX_AGENT_ACCEL_MPS2, MAX_AGENT_ACCEL_MPS2),
+            v_mps=clip(p.v_mps, 0.0, 70.0),
+            a_mps2=clip(p.a_mps2, -MAX_AGENT_ACCEL_MPS2, MAX_AGENT_ACCEL_MPS2),
             steer_rad=p.steer_rad, length_m=self._vehicle.length_m,
             width_m=self._vehicle.width_m, lane_id=ego.lane,
             lane_pos_m=max(ego.lane_pos_m, 0.0), route_index=ego.route_index,
             dist_to_target_m=ego.dist_to_target_m, required_decision_id=required_decision_id)
         agents = tuple(
             Agent(id=s.id, kind=s.kind, x_m=s.x_m, y_m=s.y_m, yaw_rad=s.yaw_rad,
-                  v_mps=_clip(s.v_mps, 0.0, 70.0), a_mps2=s.a_mps2, length_m=s.length_m,
+                  v_mps=clip(s.v_mps, 0.0, 70.0), a_mps2=s.a_mps2, length_m=s.length_m,
                   width_m=s.width_m, lane_id=s.lane_id, lane_pos_m=max(s.lane_pos_m, 0.0),
-                  signals=AgentSignals(left=bool(s.signals & _SIG_LEFT),
-                                       right=bool(s.signals & _SIG_RIGHT),
-                                       brake=bool(s.signals & _SIG_BRAKE)),
+                  signals=AgentSignals(left=bool(s.signals & SIG_LEFT),
+                                       right=bool(s.signals & SIG_RIGHT),
+                                       brake=bool(s.signals & SIG_BRAKE)),
                   history=tuple(ego.history.get(s.id, ())))
             for s in sorted(ego.seen.values(), key=lambda s: s.id))
         return Observation(
@@ -391,7 +393,9 @@ class MultiSumoSim:
             decision_id=None if control is None else control.decision_id,
             control_mode=None if control is None else control.mode,
             solve_time_ms=None if control is None else control.solve_time_ms,
-            nearby=self._nearby(ego, box), collided_with=hit))
+            nearby=nearby_records(self._traci, ego.ego_id, ego.seen, box,
+                                  foes_query=ego.foes_query),
+            collided_with=hit))
         if hit is not None:
             ego.outcome, ego.detail, ego.collided_with = "collision", \
                 f"{ego.ego_id} box overlaps {hit!r}", hit
@@ -408,33 +412,6 @@ class MultiSumoSim:
             return True
         return (ego.lane in target.lane_ids
                 and ego.lane_pos_m - self._vehicle.length_m / 2.0 >= target.lane_pos_m)
-
-    def _nearby(self, ego: EgoRun, box: OrientedBox) -> tuple[NearbyVehicle, ...]:
-        t = self._traci
-        gaps = {vid: box_gap_m(box, s.box()) for vid, s in ego.seen.items()}
-        affected: dict[str, str] = {}
-        try:
-            follower = t.vehicle.getFollower(ego.ego_id, AFFECTED_RADIUS_M)
-            if follower and follower[0] in ego.seen:
-                affected[follower[0]] = "follower"
-        except Exception:  # noqa: BLE001
-            pass
-        for vid, gap in gaps.items():
-            if vid in affected or gap > AFFECTED_RADIUS_M or ego.seen[vid].kind == "pedestrian":
-                continue
-            try:
-                leader = t.vehicle.getLeader(vid, AFFECTED_RADIUS_M)
-            except Exception:  # noqa: BLE001
-                leader = None
-            if leader and leader[0] == ego.ego_id:
-                affected[vid] = "leader"
-        return tuple(
-            NearbyVehicle(id=s.id, kind=s.kind, x_m=s.x_m, y_m=s.y_m, yaw_rad=s.yaw_rad,
-                          v_mps=s.v_mps, v_max_mps=s.v_max_mps, a_mps2=s.a_mps2,
-                          gap_m=gaps[s.id], affected=s.id in affected,
-                          affected_reason=affected.get(s.id, ""), length_m=s.length_m,
-                          width_m=s.width_m)
-            for s in sorted(ego.seen.values(), key=lambda s: s.id))
 
     def _finish_step(self) -> None:
         t = self._traci

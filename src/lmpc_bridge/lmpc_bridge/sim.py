@@ -43,44 +43,33 @@ from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 from lmpc_bridge import demand as traffic
 from lmpc_bridge import sumo_rng
-from lmpc_bridge.dynamics import EgoPose, clamp_control, step_bicycle, wrap_angle_rad
-from lmpc_bridge.geometry import OrientedBox, box_gap_m, boxes_overlap
+from lmpc_bridge.dynamics import EgoPose, clamp_control, step_bicycle
+from lmpc_bridge.geometry import OrientedBox, boxes_overlap
 from lmpc_bridge.mapping import RouteGeometry, build_map, read_net
 from lmpc_bridge.metrics import compute_metrics
-from lmpc_bridge.record import EpisodeRecord, NearbyVehicle, StepRecord
+from lmpc_bridge.participants import (
+    MAX_AGENT_ACCEL_MPS2,
+    PERSON_VARS,
+    SIG_BRAKE,
+    SIG_LEFT,
+    SIG_RIGHT,
+    VEHICLE_VARS,
+    Seen,
+    clip,
+    convert,
+    foes_query_ok,
+    nearby_records,
+    sumo_angle_from_yaw,
+    yaw_from_sumo_angle,
+)
+from lmpc_bridge.record import EpisodeRecord, StepRecord
 from lmpc_bridge.route_watch import RouteWatch
 from lmpc_bridge.scenarios import Scene, build_scene
 
 DT_S = 0.1
 EGO_ID = "ego"
-MAX_AGENT_ACCEL_MPS2 = 15.0
 CONTROL_STALE_S = 0.3
 """A control stamped more than this before the current step counts as late (RELIABILITY)."""
-AFFECTED_RADIUS_M = 50.0
-RED_LIGHT_RADIUS_M = 30.0
-"""An affected vehicle whose next light within this distance is red / yellow is not counted."""
-
-_VEHICLE_VARS = (
-    tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_ACCELERATION, tc.VAR_LENGTH,
-    tc.VAR_WIDTH, tc.VAR_LANE_ID, tc.VAR_LANEPOSITION, tc.VAR_SIGNALS, tc.VAR_VEHICLECLASS,
-    tc.VAR_ALLOWED_SPEED, tc.VAR_MAXSPEED,
-)
-_PERSON_VARS = (tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_LANE_ID,
-                tc.VAR_LANEPOSITION)
-_PERSON_LENGTH_M, _PERSON_WIDTH_M = 0.5, 0.5  # the subscription cannot give a person's size
-
-# getSignals bits (SUMO TraCI docs, "signalling")
-_SIG_RIGHT, _SIG_LEFT, _SIG_BRAKE = 1 << 0, 1 << 1, 1 << 3
-
-_KIND_BY_VCLASS = {
-    "passenger": "car", "private": "car", "taxi": "car", "evehicle": "car", "emergency": "car",
-    "authority": "car", "army": "car", "vip": "car", "custom1": "car", "custom2": "car",
-    "truck": "truck", "trailer": "truck", "delivery": "truck",
-    "bus": "bus", "coach": "bus", "tram": "bus",
-    "motorcycle": "motorcycle", "moped": "motorcycle",
-    "bicycle": "bicycle", "pedestrian": "pedestrian",
-}
-
 Outcome = Literal["running", "reached", "collision", "timeout", "off_route", "error"]
 
 
@@ -126,41 +115,6 @@ class StepInfo:
     collided_with: str | None = None
 
 
-@dataclass(frozen=True)
-class _Seen:
-    """One participant as the context subscription reports it (converted to our frame)."""
-
-    id: str
-    kind: str
-    x_m: float
-    y_m: float
-    yaw_rad: float
-    v_mps: float
-    a_mps2: float
-    length_m: float
-    width_m: float
-    lane_id: str | None
-    lane_pos_m: float
-    signals: int
-    v_max_mps: float
-
-    def box(self) -> OrientedBox:
-        return OrientedBox(self.x_m, self.y_m, self.yaw_rad, self.length_m, self.width_m)
-
-
-def yaw_from_sumo_angle(angle_deg: float) -> float:
-    """SUMO angle (degrees clockwise from north) -> yaw (rad counter-clockwise from east)."""
-    return wrap_angle_rad(math.radians(90.0 - angle_deg))
-
-
-def sumo_angle_from_yaw(yaw_rad: float) -> float:
-    return (90.0 - math.degrees(yaw_rad)) % 360.0
-
-
-def _clip(value: float, low: float, high: float) -> float:
-    return min(max(value, low), high)
-
-
 class SumoSim:
     """One SUMO episode at a time, the ego integrated by the bridge (see module docstring)."""
 
@@ -185,7 +139,7 @@ class SumoSim:
     def _reset_state(self) -> None:
         self._step_index = 0
         self._pose = EgoPose(0.0, 0.0, 0.0, 0.0)
-        self._seen: dict[str, _Seen] = {}
+        self._seen: dict[str, Seen] = {}
         self._history: dict[str, deque[HistoryPoint]] = {}
         self._ego_lane: str | None = None
         self._ego_lane_pos_m = 0.0
@@ -300,11 +254,7 @@ class SumoSim:
         net = read_net(scene.net_file)
         self._map, self._route = build_map(scene, net=net)
         self._watch = RouteWatch.of_net(net, scene.ego_route_edges)
-        # libsumo 1.28 crashes (SIGSEGV) in getJunctionFoes at an "unregulated" junction
-        # (no right-of-way data, e.g. netgenerate --spider centres): skip the query there.
-        self._foes_query_ok = not any(
-            (net.getEdge(e).getToNode().getType() or "") == "unregulated"
-            for e in scene.ego_route_edges)
+        self._foes_query_ok = foes_query_ok(net, scene.ego_route_edges)
         fx, fy = t.vehicle.getPosition(EGO_ID)
         yaw = yaw_from_sumo_angle(t.vehicle.getAngle(EGO_ID))
         half = self._vehicle.length_m / 2.0
@@ -324,9 +274,9 @@ class SumoSim:
         """The context subscriptions around the ego the observations come from."""
         t = self._traci
         t.vehicle.subscribeContext(EGO_ID, tc.CMD_GET_VEHICLE_VARIABLE, self._range_m,
-                                   list(_VEHICLE_VARS))
+                                   list(VEHICLE_VARS))
         t.vehicle.subscribeContext(EGO_ID, tc.CMD_GET_PERSON_VARIABLE, self._range_m,
-                                   list(_PERSON_VARS))
+                                   list(PERSON_VARS))
 
     # --- branching ----------------------------------------------------------------------
     def save_state(self, path: Path) -> "SimState":
@@ -473,7 +423,7 @@ class SumoSim:
         """Read the context subscription, update histories, ego lane, route progress, signals."""
         t = self._traci
         results = t.vehicle.getContextSubscriptionResults(EGO_ID) or {}
-        seen: dict[str, _Seen] = {}
+        seen: dict[str, Seen] = {}
         now = self.time_s
         for vid, vals in results.items():
             if tc.VAR_POSITION not in vals:
@@ -483,12 +433,12 @@ class SumoSim:
                 self._ego_lane = lane
                 self._ego_lane_pos_m = float(vals.get(tc.VAR_LANEPOSITION, 0.0))
                 continue
-            seen[vid] = self._convert(vid, vals)
+            seen[vid] = convert(vid, vals)
         self._seen = seen
         for vid, s in seen.items():
             hist = self._history.setdefault(vid, deque(maxlen=self._history_len))
             hist.append(HistoryPoint(t_s=now, x_m=s.x_m, y_m=s.y_m,
-                                     v_mps=_clip(s.v_mps, 0.0, 70.0)))
+                                     v_mps=clip(s.v_mps, 0.0, 70.0)))
         for vid in list(self._history):
             if vid not in seen:
                 del self._history[vid]  # out of range: history restarts when seen again
@@ -507,34 +457,6 @@ class SumoSim:
                 self._dist_to_target_m = max(self._dist_to_target_m - self._pose.v_mps * DT_S,
                                              0.0)
         self._signals = self._read_signals()
-
-    @staticmethod
-    def _convert(vid: str, vals: dict[int, Any]) -> _Seen:
-        is_vehicle = tc.VAR_VEHICLECLASS in vals
-        yaw = yaw_from_sumo_angle(float(vals.get(tc.VAR_ANGLE, 90.0)))
-        if is_vehicle:
-            length = float(vals.get(tc.VAR_LENGTH, 4.5))
-            width = float(vals.get(tc.VAR_WIDTH, 1.8))
-            kind = _KIND_BY_VCLASS.get(str(vals.get(tc.VAR_VEHICLECLASS, "")), "car")
-            accel = float(vals.get(tc.VAR_ACCELERATION, 0.0))
-            signals = int(vals.get(tc.VAR_SIGNALS, 0))
-            v_max = min(float(vals.get(tc.VAR_ALLOWED_SPEED, 0.0)),
-                        float(vals.get(tc.VAR_MAXSPEED, 70.0)))
-        else:
-            length, width, kind = _PERSON_LENGTH_M, _PERSON_WIDTH_M, "pedestrian"
-            accel, signals = 0.0, 0
-            v_max = 1.5
-        fx, fy = vals[tc.VAR_POSITION]
-        # SUMO reports the front bumper; our convention is the box centre.
-        x = fx - length / 2.0 * math.cos(yaw)
-        y = fy - length / 2.0 * math.sin(yaw)
-        lane = vals.get(tc.VAR_LANE_ID) or None
-        return _Seen(id=vid, kind=kind, x_m=x, y_m=y, yaw_rad=yaw,
-                     v_mps=float(vals.get(tc.VAR_SPEED, 0.0)),
-                     a_mps2=_clip(accel, -MAX_AGENT_ACCEL_MPS2, MAX_AGENT_ACCEL_MPS2),
-                     length_m=length, width_m=width, lane_id=lane,
-                     lane_pos_m=float(vals.get(tc.VAR_LANEPOSITION, 0.0)),
-                     signals=signals, v_max_mps=v_max)
 
     def _read_signals(self) -> tuple[LinkSignal, ...]:
         """Signal-controlled links ahead on the ego route (none at an unsignalized junction)."""
@@ -586,8 +508,8 @@ class SumoSim:
         p = self._pose
         ego = EgoState(
             stamp_s=now, seq=seq, x_m=p.x_m, y_m=p.y_m, yaw_rad=p.yaw_rad,
-            v_mps=_clip(p.v_mps, 0.0, 70.0),
-            a_mps2=_clip(p.a_mps2, -MAX_AGENT_ACCEL_MPS2, MAX_AGENT_ACCEL_MPS2),
+            v_mps=clip(p.v_mps, 0.0, 70.0),
+            a_mps2=clip(p.a_mps2, -MAX_AGENT_ACCEL_MPS2, MAX_AGENT_ACCEL_MPS2),
             steer_rad=p.steer_rad, length_m=self._vehicle.length_m,
             width_m=self._vehicle.width_m, lane_id=self._ego_lane,
             lane_pos_m=max(self._ego_lane_pos_m, 0.0), route_index=self._route_index,
@@ -596,11 +518,11 @@ class SumoSim:
         )
         agents = tuple(
             Agent(id=s.id, kind=s.kind, x_m=s.x_m, y_m=s.y_m, yaw_rad=s.yaw_rad,
-                  v_mps=_clip(s.v_mps, 0.0, 70.0), a_mps2=s.a_mps2, length_m=s.length_m,
+                  v_mps=clip(s.v_mps, 0.0, 70.0), a_mps2=s.a_mps2, length_m=s.length_m,
                   width_m=s.width_m, lane_id=s.lane_id, lane_pos_m=max(s.lane_pos_m, 0.0),
-                  signals=AgentSignals(left=bool(s.signals & _SIG_LEFT),
-                                       right=bool(s.signals & _SIG_RIGHT),
-                                       brake=bool(s.signals & _SIG_BRAKE)),
+                  signals=AgentSignals(left=bool(s.signals & SIG_LEFT),
+                                       right=bool(s.signals & SIG_RIGHT),
+                                       brake=bool(s.signals & SIG_BRAKE)),
                   history=tuple(self._history.get(s.id, ())))
             for s in sorted(self._seen.values(), key=lambda s: s.id)
         )
@@ -650,7 +572,8 @@ class SumoSim:
             if boxes_overlap(ego_box, s.box()):
                 collided = s.id
                 break
-        nearby = self._nearby_records(ego_box)
+        nearby = nearby_records(self._traci, EGO_ID, self._seen, ego_box,
+                                foes_query=self._foes_query_ok)
         self._steps.append(StepRecord(
             step=self._step_index, t_s=self.time_s, x_m=p.x_m, y_m=p.y_m, yaw_rad=p.yaw_rad,
             v_mps=p.v_mps, a_mps2=p.a_mps2, steer_rad=p.steer_rad, lane_id=self._ego_lane,
@@ -695,75 +618,6 @@ class SumoSim:
         # Passing the target point on a target lane also counts (no skipping the circle).
         return (self._ego_lane in target.lane_ids
                 and self._ego_lane_pos_m - self._vehicle.length_m / 2.0 >= target.lane_pos_m)
-
-    def _nearby_records(self, ego_box: OrientedBox) -> tuple[NearbyVehicle, ...]:
-        gaps = {vid: box_gap_m(ego_box, s.box()) for vid, s in self._seen.items()}
-        affected = self._affected(gaps)
-        return tuple(
-            NearbyVehicle(id=s.id, kind=s.kind, x_m=s.x_m, y_m=s.y_m, yaw_rad=s.yaw_rad,
-                          v_mps=s.v_mps, v_max_mps=s.v_max_mps, a_mps2=s.a_mps2,
-                          gap_m=gaps[s.id], affected=s.id in affected,
-                          affected_reason=affected.get(s.id, ""),
-                          at_red_light=s.id in affected and self._at_red_light(s.id),
-                          length_m=s.length_m, width_m=s.width_m)
-            for s in sorted(self._seen.values(), key=lambda s: s.id)
-        )
-
-    def _affected(self, gaps: dict[str, float]) -> dict[str, str]:
-        """Vehicles whose speed the ego holds down (for ``ineff``), with the reason.
-
-        - ``follower``: SUMO's follower of the ego within 50 m;
-        - ``leader``: vehicles within 50 m whose car-following leader is the ego;
-        - ``yielding``: junction foes of the ego within 50 m (SUMO ``getJunctionFoes``)
-          that are braking (a < -0.5 m/s²) or slow (v < 0.5 v_max) with no other
-          leader within 30 m, i.e. nothing but the ego explains their slowing.
-        Vehicles at a red / yellow light within 30 m stay flagged here and are marked
-        ``at_red_light`` in the record; ``metrics.step_ineff`` leaves them out.
-        """
-        t = self._traci
-        out: dict[str, str] = {}
-        try:
-            follower = t.vehicle.getFollower(EGO_ID, AFFECTED_RADIUS_M)
-            if follower and follower[0] and follower[0] in self._seen:
-                out[follower[0]] = "follower"
-        except Exception:  # noqa: BLE001 - off-network ego has no follower
-            pass
-        for vid, gap in gaps.items():
-            if vid in out or gap > AFFECTED_RADIUS_M or self._seen[vid].kind == "pedestrian":
-                continue
-            leader = self._leader_of(vid, AFFECTED_RADIUS_M)
-            if leader == EGO_ID:
-                out[vid] = "leader"
-        try:
-            foes = (t.vehicle.getJunctionFoes(EGO_ID, AFFECTED_RADIUS_M)
-                    if self._foes_query_ok else ())
-        except Exception:  # noqa: BLE001
-            foes = ()
-        for foe in foes:
-            vid = foe[0]
-            s = self._seen.get(vid)
-            if s is None or vid in out:
-                continue
-            slowing = s.a_mps2 < -0.5 or s.v_mps < 0.5 * s.v_max_mps
-            other_leader = self._leader_of(vid, 30.0)
-            if slowing and other_leader in (None, EGO_ID):
-                out[vid] = "yielding"
-        return out
-
-    def _leader_of(self, vid: str, dist_m: float) -> str | None:
-        try:
-            leader = self._traci.vehicle.getLeader(vid, dist_m)
-        except Exception:  # noqa: BLE001
-            return None
-        return leader[0] if leader and leader[0] else None
-
-    def _at_red_light(self, vid: str) -> bool:
-        try:
-            upcoming = self._traci.vehicle.getNextTLS(vid)
-        except Exception:  # noqa: BLE001
-            return False
-        return bool(upcoming) and upcoming[0][2] <= RED_LIGHT_RADIUS_M \
-            and upcoming[0][3] in "rRyYu"
 
     # --- status and record --------------------------------------------------------------
     @property

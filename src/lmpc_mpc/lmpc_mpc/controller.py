@@ -9,11 +9,12 @@ baseline (normal weights, every agent in range attended, route reference,
 closest-heading predictions, zero bias).
 
 Fallbacks (RELIABILITY.md): a failed solve uses the shifted previous plan for
-``shifted_plan_steps`` steps, then brakes at ``vehicle.safe_brake_mps2`` with zero
-steer; stale ego / agents brake at once. A solve over the wall-time budget is a
-failure only in realtime operation (``realtime=True`` or ``enforce_time_budget`` in
-the config); in sync / benchmark runs it is counted (``over_budget``) and used, so the
-same observations give the same controls however loaded the machine is.
+``shifted_plan_steps`` steps, then brakes at ``vehicle.safe_brake_mps2``, the
+steer ramped towards 0 at the steer-rate limit; stale ego / agents brake at once. A
+solve over the wall-time budget is a failure only in realtime operation
+(``realtime=True`` or ``enforce_time_budget`` in the config); in sync / benchmark
+runs it is counted (``over_budget``) and used, so the same observations give the same
+controls however loaded the machine is.
 """
 from __future__ import annotations
 
@@ -711,8 +712,16 @@ class MpcController(CrossingRules):
         self._plan = None
         self._plan_pred = None
         self.predicted = None
-        return self._emit(obs, (-self.vehicle.safe_brake_mps2, 0.0), "brake", status,
-                          solve_time_s, decision_id, None, (), None)
+        return self._emit(obs, (-self.vehicle.safe_brake_mps2, self._straighten(obs)), "brake",
+                          status, solve_time_s, decision_id, None, (), None)
+
+    def _straighten(self, obs: Observation) -> float:
+        """The brake's steer: towards 0 from the ego's current steer, no faster than the
+        steer-rate limit allows in one step (the bridge's guard would clamp a jump to 0 to
+        exactly this value and flag the control as clamped)."""
+        delta = self.vehicle.max_steer_rate_radps * self.config.dt_s
+        steer = obs.ego.steer_rad
+        return min(max(0.0, steer - delta), steer + delta)
 
     def _emit(self, obs: Observation, u: tuple[float, float], mode: ControlMode, status: str,
               solve_time_s: float, decision_id: Optional[str], ref_id: Optional[int],
@@ -720,7 +729,8 @@ class MpcController(CrossingRules):
         veh = self.vehicle
         a, d = u
         if not (math.isfinite(a) and math.isfinite(d)):
-            a, d, mode, status = -veh.safe_brake_mps2, 0.0, "brake", "non-finite control"
+            a, d, mode, status = (-veh.safe_brake_mps2, self._straighten(obs), "brake",
+                                  "non-finite control")
         a = float(np.clip(a, -veh.max_decel_mps2, veh.max_accel_mps2))
         d = float(np.clip(d, -veh.max_steer_rad, veh.max_steer_rad))
         self._u_prev2 = self._u_prev if self._u_prev is not None else (a, d)

@@ -140,6 +140,16 @@ def test_stale_agents_brake(solver: MpcSolver) -> None:
     ctl = ctrl.compute(S.observation(m, ego), now_s=6.0)
     assert ctl.mode == "brake"
 
+    # a stale input while steering: the brake straightens the wheel no faster than the
+    # steer-rate limit (a jump to 0 was clamped and flagged by the bridge's guard)
+    veh = ctrl.vehicle
+    rate = veh.max_steer_rate_radps * CFG.dt_s
+    for steer, expected in ((0.5, 0.5 - rate), (-0.5, -0.5 + rate), (rate / 2, 0.0)):
+        turning = ego.model_copy(update={"steer_rad": steer})
+        ctl = ctrl.compute(S.observation(m, turning), now_s=6.0)
+        assert ctl.mode == "brake" and ctl.steer_rad == pytest.approx(expected)
+        assert abs(ctl.steer_rad - steer) <= rate + 1e-12
+
 
 def test_tiny_time_budget_fails_safely() -> None:
     cfg = CFG.model_copy(update={"time_budget_s": 1e-6, "enforce_time_budget": True})
