@@ -47,10 +47,30 @@ def _solver(k: int) -> Any:
     return _SOLVERS[k]
 
 
+class BlindController:
+    """An ego's controller with every other vehicle removed from its observation: two
+    blind egos collide wherever their paths meet (``--blind``: does a scene make the
+    egos meet?)."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+
+    def compute(self, obs: Any) -> Any:
+        from lmpc_msgs_py.observation import Observation
+
+        agents = obs.agents.model_copy(update={"agents": ()})
+        return self.inner.compute(Observation(map=obs.map, ego=obs.ego, agents=agents,
+                                              signals=obs.signals))
+
+    def on_decision(self, decision: Any) -> Any:
+        return self.inner.on_decision(decision)
+
+
 def wire(method: str, ego_ids: list[str], mode: str, *, coordinator_backend: str = "rules",
-         coordinator: Any = None, on_silence: str = "distributed"
+         coordinator: Any = None, on_silence: str = "distributed", blind: bool = False
          ) -> tuple[dict[str, Any], Any]:
-    """Per-ego wiring (controller, planner) and the coordination of one episode."""
+    """Per-ego wiring (controller, planner) and the coordination of one episode
+    (``blind``: controllers that see no other vehicle, :class:`BlindController`)."""
     from lmpc_bridge.multi_episode import EgoWiring
     from lmpc_llm_planner.coordination import (
         Coordination,
@@ -66,7 +86,9 @@ def wire(method: str, ego_ids: list[str], mode: str, *, coordinator_backend: str
                          f"{method!r}")
     egos = {}
     for k, eid in enumerate(ego_ids):
-        controller = MpcController(load_mpc_config(), solver=_solver(k))
+        controller: Any = MpcController(load_mpc_config(), solver=_solver(k))
+        if blind:
+            controller = BlindController(controller)
         planner = make_planner(method) if method.startswith("lmpc-") else None
         egos[eid] = EgoWiring(controller=controller, planner=planner)
     if mode == "central" and coordinator is None:
@@ -115,7 +137,7 @@ def result_row(result: Any, method: str, mode: str, wall_s: float) -> dict[str, 
 
 def run_one(family: str, seed: int, method: str, mode: str, work_dir: Path, *,
             coordinator: Any = None, on_silence: str = "distributed",
-            max_time_s: float = 120.0) -> tuple[Any, dict[str, Any]]:
+            max_time_s: float = 120.0, blind: bool = False) -> tuple[Any, dict[str, Any]]:
     from lmpc_bridge.multi_episode import run_multi_episode
     from lmpc_bridge.multi_scene import ego_specs
     from lmpc_bridge.multi_sim import MultiSumoSim
@@ -123,7 +145,7 @@ def run_one(family: str, seed: int, method: str, mode: str, work_dir: Path, *,
 
     ids = [s.ego_id for s in ego_specs(build_scene(family, seed, work_dir=work_dir))]
     egos, coordination = wire(method, ids, mode, coordinator=coordinator,
-                              on_silence=on_silence)
+                              on_silence=on_silence, blind=blind)
     started = time.perf_counter()
     result = run_multi_episode(MultiSumoSim(work_dir=work_dir), family=family, seed=seed,
                                egos=egos, coordination=coordination, max_time_s=max_time_s)
@@ -131,7 +153,8 @@ def run_one(family: str, seed: int, method: str, mode: str, work_dir: Path, *,
 
 
 def run_multi_scenes(families: list[str], seeds: list[int], methods: list[str],
-                     modes: list[str], out: Path, *, max_time_s: float = 120.0) -> Path:
+                     modes: list[str], out: Path, *, max_time_s: float = 120.0,
+                     blind: bool = False) -> Path:
     """Every (family, seed, method, mode) in this process; rows to ``out/multi_results.csv``
     (written as they come)."""
     out.mkdir(parents=True, exist_ok=True)
@@ -146,7 +169,7 @@ def run_multi_scenes(families: list[str], seeds: list[int], methods: list[str],
                     for mode in modes:
                         try:
                             _, row = run_one(family, seed, method, mode, work_dir,
-                                             max_time_s=max_time_s)
+                                             max_time_s=max_time_s, blind=blind)
                         except Exception as exc:  # noqa: BLE001 - one scene, one error row
                             row = {"family": family, "seed": seed, "method": method,
                                    "coordination": mode,
@@ -213,6 +236,8 @@ def _seeds(text: str) -> list[int]:
 def main(argv: Optional[list[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--family", default="narrow", choices=MULTI_FAMILIES)
+    ap.add_argument("--blind", action="store_true",
+                    help="controllers see no other vehicle (do the egos of a scene meet?)")
     ap.add_argument("--seeds", type=_seeds, default=[0])
     ap.add_argument("--methods", default="lmpc-rules")
     ap.add_argument("--coordination", default="none,distributed,central")
@@ -224,7 +249,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     if bad:
         ap.error(f"--coordination {','.join(bad)}: choose from {', '.join(MODES)}")
     path = run_multi_scenes([args.family], args.seeds, args.methods.split(","), modes,
-                            args.out, max_time_s=args.max_time)
+                            args.out, max_time_s=args.max_time, blind=args.blind)
     print(path)
     return 0
 
