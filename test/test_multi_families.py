@@ -1,7 +1,8 @@
 """Multi-vehicle joint control in-process (issue 18) on ``usi-multi`` and ``merge``.
 
-Development seeds only: usi-multi 100 has four egos, merge 101 two egos that come within
-3.5 m of each other without coordination (lmpc-rules, measured) and collide when their
+Development seeds only: usi-multi 100 and 103 have four egos (on 103 without coordination
+three lmpc-rules egos time out, two mpc egos collide: measured), merge 101 two egos that
+come within 3.5 m of each other without coordination (lmpc-rules) and collide when their
 controllers do not see each other.
 """
 from __future__ import annotations
@@ -67,9 +68,10 @@ def test_statuses_and_hold_point_at_the_junction(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("mode", ["distributed", "central"])
-@pytest.mark.parametrize("family", ["usi-multi", "merge"])
-def test_coordination_lets_every_ego_through(family: str, mode: str, tmp_path: Path) -> None:
-    result, row = multi.run_one(family, 101, "lmpc-rules", mode, tmp_path)
+@pytest.mark.parametrize("family,seed", [("usi-multi", 103), ("merge", 101)])
+def test_coordination_lets_every_ego_through(family: str, seed: int, mode: str,
+                                             tmp_path: Path) -> None:
+    result, row = multi.run_one(family, seed, "lmpc-rules", mode, tmp_path)
     _clean(result)
     assert row["hold_steps"] > 0  # somebody waited at its stop line
     if mode == "central":
