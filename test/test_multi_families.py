@@ -76,7 +76,8 @@ def test_coordination_lets_every_ego_through(family: str, seed: int, mode: str,
     assert row["hold_steps"] > 0  # somebody waited at its stop line
     if mode == "central":
         assert row["directives"] > 0 and row["directives_refused"] == 0
-    assert row["min_gap_m"] > 5.0
+    if family == "merge":  # one behind the other in the merged lane, never side by side
+        assert row["min_gap_m"] > 5.0
 
 
 def test_blind_egos_meet_at_the_merge(tmp_path: Path) -> None:
