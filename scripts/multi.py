@@ -21,7 +21,7 @@ from typing import Any, Optional
 
 from lmpc_scripts.methods import make_planner
 
-MULTI_FAMILIES = ("narrow",)
+MULTI_FAMILIES = ("narrow", "usi-multi", "merge")
 """Families whose scenes carry several egos (``params["egos"]``)."""
 MODES = ("none", "distributed", "central")
 MULTI_METHODS = ("mpc", "lmpc-rules")
@@ -29,8 +29,8 @@ MULTI_METHODS = ("mpc", "lmpc-rules")
 ROW_FIELDS = (
     "family", "seed", "method", "coordination", "egos", "reached", "ego_collisions",
     "other_collisions", "deadlock", "timeouts", "clear_s", "joint_oc", "end_s",
-    "directives", "directives_refused", "hold_steps", "silent_steps", "wall_s", "per_ego",
-    "detail")
+    "directives", "directives_refused", "hold_steps", "silent_steps", "min_gap_m", "wall_s",
+    "per_ego", "detail")
 
 _SOLVERS: list[Any] = []
 
@@ -47,10 +47,30 @@ def _solver(k: int) -> Any:
     return _SOLVERS[k]
 
 
+class BlindController:
+    """An ego's controller with every other vehicle removed from its observation: two
+    blind egos collide wherever their paths meet (``--blind``: does a scene make the
+    egos meet?)."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+
+    def compute(self, obs: Any) -> Any:
+        from lmpc_msgs_py.observation import Observation
+
+        agents = obs.agents.model_copy(update={"agents": ()})
+        return self.inner.compute(Observation(map=obs.map, ego=obs.ego, agents=agents,
+                                              signals=obs.signals))
+
+    def on_decision(self, decision: Any) -> Any:
+        return self.inner.on_decision(decision)
+
+
 def wire(method: str, ego_ids: list[str], mode: str, *, coordinator_backend: str = "rules",
-         coordinator: Any = None, on_silence: str = "distributed"
+         coordinator: Any = None, on_silence: str = "distributed", blind: bool = False
          ) -> tuple[dict[str, Any], Any]:
-    """Per-ego wiring (controller, planner) and the coordination of one episode."""
+    """Per-ego wiring (controller, planner) and the coordination of one episode
+    (``blind``: controllers that see no other vehicle, :class:`BlindController`)."""
     from lmpc_bridge.multi_episode import EgoWiring
     from lmpc_llm_planner.coordination import (
         Coordination,
@@ -66,7 +86,9 @@ def wire(method: str, ego_ids: list[str], mode: str, *, coordinator_backend: str
                          f"{method!r}")
     egos = {}
     for k, eid in enumerate(ego_ids):
-        controller = MpcController(load_mpc_config(), solver=_solver(k))
+        controller: Any = MpcController(load_mpc_config(), solver=_solver(k))
+        if blind:
+            controller = BlindController(controller)
         planner = make_planner(method) if method.startswith("lmpc-") else None
         egos[eid] = EgoWiring(controller=controller, planner=planner)
     if mode == "central" and coordinator is None:
@@ -76,11 +98,26 @@ def wire(method: str, ego_ids: list[str], mode: str, *, coordinator_backend: str
     return egos, coordination
 
 
+def closest_approach_m(result: Any) -> Optional[float]:
+    """The smallest centre-to-centre distance of two egos at the same step (the egos'
+    records; None without records): how close the egos came to each other."""
+    import math
+
+    steps: dict[int, list[tuple[float, float]]] = {}
+    for rec in getattr(result, "records", {}).values():
+        for s in rec.steps:
+            steps.setdefault(s.step, []).append((s.x_m, s.y_m))
+    gaps = [math.dist(a, b) for pts in steps.values()
+            for i, a in enumerate(pts) for b in pts[i + 1:]]
+    return min(gaps) if gaps else None
+
+
 def result_row(result: Any, method: str, mode: str, wall_s: float) -> dict[str, Any]:
     per_ego = {e.ego_id: {"outcome": e.outcome, "time_s": round(e.metrics.time_s, 3),
                           "oc": round(e.metrics.overall_cost, 4),
                           "collided_with": e.collided_with} for e in result.egos}
     st = result.stats
+    gap = closest_approach_m(result)
     return {
         "family": result.family, "seed": result.seed, "method": method, "coordination": mode,
         "egos": len(result.egos), "reached": sum(e.outcome == "reached" for e in result.egos),
@@ -92,6 +129,7 @@ def result_row(result: Any, method: str, mode: str, wall_s: float) -> dict[str, 
         "directives": st.get("directives", 0),
         "directives_refused": st.get("directives_refused", 0),
         "hold_steps": st.get("hold_steps", 0), "silent_steps": st.get("silent_steps", 0),
+        "min_gap_m": "" if gap is None else round(gap, 2),
         "wall_s": round(wall_s, 2),
         "per_ego": json.dumps(per_ego, sort_keys=True),
         "detail": "; ".join(f"{e.ego_id}: {e.detail}" for e in result.egos if e.detail)[:500]}
@@ -99,7 +137,7 @@ def result_row(result: Any, method: str, mode: str, wall_s: float) -> dict[str, 
 
 def run_one(family: str, seed: int, method: str, mode: str, work_dir: Path, *,
             coordinator: Any = None, on_silence: str = "distributed",
-            max_time_s: float = 120.0) -> tuple[Any, dict[str, Any]]:
+            max_time_s: float = 120.0, blind: bool = False) -> tuple[Any, dict[str, Any]]:
     from lmpc_bridge.multi_episode import run_multi_episode
     from lmpc_bridge.multi_scene import ego_specs
     from lmpc_bridge.multi_sim import MultiSumoSim
@@ -107,7 +145,7 @@ def run_one(family: str, seed: int, method: str, mode: str, work_dir: Path, *,
 
     ids = [s.ego_id for s in ego_specs(build_scene(family, seed, work_dir=work_dir))]
     egos, coordination = wire(method, ids, mode, coordinator=coordinator,
-                              on_silence=on_silence)
+                              on_silence=on_silence, blind=blind)
     started = time.perf_counter()
     result = run_multi_episode(MultiSumoSim(work_dir=work_dir), family=family, seed=seed,
                                egos=egos, coordination=coordination, max_time_s=max_time_s)
@@ -115,7 +153,8 @@ def run_one(family: str, seed: int, method: str, mode: str, work_dir: Path, *,
 
 
 def run_multi_scenes(families: list[str], seeds: list[int], methods: list[str],
-                     modes: list[str], out: Path, *, max_time_s: float = 120.0) -> Path:
+                     modes: list[str], out: Path, *, max_time_s: float = 120.0,
+                     blind: bool = False) -> Path:
     """Every (family, seed, method, mode) in this process; rows to ``out/multi_results.csv``
     (written as they come)."""
     out.mkdir(parents=True, exist_ok=True)
@@ -130,7 +169,7 @@ def run_multi_scenes(families: list[str], seeds: list[int], methods: list[str],
                     for mode in modes:
                         try:
                             _, row = run_one(family, seed, method, mode, work_dir,
-                                             max_time_s=max_time_s)
+                                             max_time_s=max_time_s, blind=blind)
                         except Exception as exc:  # noqa: BLE001 - one scene, one error row
                             row = {"family": family, "seed": seed, "method": method,
                                    "coordination": mode,
@@ -156,14 +195,16 @@ def multi_table_md(path: Path) -> str:
         groups.setdefault((r["family"], r["method"], r["coordination"]), []).append(r)
     lines = ["| family | method | coordination | scenes | all through | ego-ego collisions "
              "| collisions with others | deadlocks | egos timed out | errors "
-             "| time to clear, s (mean, all through) | joint O.C. (mean) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| time to clear, s (mean, all through) | joint O.C. (mean) "
+             "| closest egos, m (min / median) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for (family, method, mode), rs in groups.items():
         ok = [r for r in rs if r.get("reached") not in (None, "")]
         errors = len(rs) - len(ok)
         through = [r for r in ok if r["reached"] == r["egos"]]
         clear = [float(r["clear_s"]) for r in through if r["clear_s"]]
         occ = [float(r["joint_oc"]) for r in ok]
+        gaps = sorted(float(r["min_gap_m"]) for r in ok if r.get("min_gap_m"))
         lines.append(
             f"| {family} | {method} | {mode} | {len(rs)} | {len(through)} "
             f"| {sum(int(r['ego_collisions']) for r in ok)} "
@@ -171,8 +212,17 @@ def multi_table_md(path: Path) -> str:
             f"| {sum(int(r['deadlock']) for r in ok)} "
             f"| {sum(int(r['timeouts']) for r in ok)} | {errors} "
             f"| {sum(clear) / len(clear) if clear else float('nan'):.1f} "
-            f"| {sum(occ) / len(occ) if occ else float('nan'):.1f} |")
+            f"| {sum(occ) / len(occ) if occ else float('nan'):.1f} "
+            f"| {_gaps(gaps)} |")
     return "\n".join(lines) + "\n"
+
+
+def _gaps(gaps: list[float]) -> str:
+    if not gaps:
+        return "-"
+    n = len(gaps)
+    median = gaps[n // 2] if n % 2 else (gaps[n // 2 - 1] + gaps[n // 2]) / 2.0
+    return f"{gaps[0]:.1f} / {median:.1f}"
 
 
 def _seeds(text: str) -> list[int]:
@@ -186,6 +236,8 @@ def _seeds(text: str) -> list[int]:
 def main(argv: Optional[list[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--family", default="narrow", choices=MULTI_FAMILIES)
+    ap.add_argument("--blind", action="store_true",
+                    help="controllers see no other vehicle (do the egos of a scene meet?)")
     ap.add_argument("--seeds", type=_seeds, default=[0])
     ap.add_argument("--methods", default="lmpc-rules")
     ap.add_argument("--coordination", default="none,distributed,central")
@@ -197,7 +249,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     if bad:
         ap.error(f"--coordination {','.join(bad)}: choose from {', '.join(MODES)}")
     path = run_multi_scenes([args.family], args.seeds, args.methods.split(","), modes,
-                            args.out, max_time_s=args.max_time)
+                            args.out, max_time_s=args.max_time, blind=args.blind)
     print(path)
     return 0
 

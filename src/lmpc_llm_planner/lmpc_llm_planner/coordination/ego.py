@@ -3,7 +3,8 @@
 ``EgoCoordination`` sits between the ego's observation and its planner / MPC:
 
 - ``status(obs)``: the :class:`EgoStatus` it reports (route position, speed, intent, the
-  narrow section ahead as :class:`ConflictView`, its current decision in a few words);
+  shared conflict ahead -- narrow section, junction or merge -- as :class:`ConflictView`,
+  its current decision in a few words);
 - ``follow(command)``: the command in force (``yield`` / ``proceed``, a speed band, until
   a deadline in sim time; from a :class:`Directive` in ``central`` mode, from its own
   rule set in ``distributed`` mode). After the deadline the ego is on its own planner;

@@ -2,7 +2,10 @@
 
 Used by every ego in ``distributed`` mode (each on the statuses it received, with its own
 memory: the same statuses give every ego the same answer) and by the coordinator's
-``rules`` backend in ``central`` mode. Per conflict, among the egos that have not left it
+``rules`` backend in ``central`` mode. The same rules for the three kinds of conflict
+(``coordination.conflicts``): a narrow section (a direction = its section lane), a
+junction or a merge (one zone; a "direction" = an ego's movement through it, its first
+internal lane). Per conflict, among the egos that have not left it
 and are within ``ENGAGE_M`` of its entry:
 
 1. **committed** egos go first: inside the conflict, or too fast to stop before their
