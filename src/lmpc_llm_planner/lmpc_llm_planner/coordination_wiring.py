@@ -1,0 +1,83 @@
+"""The planner node's coordination topics (issue 18; imports rclpy through the node).
+
+A planner of a multi-ego graph started with ``coordination`` ``distributed`` or
+``central`` gets an :class:`~lmpc_llm_planner.coordination.link.EgoLink` and these topics:
+
+- publishes its ``EgoStatus`` on the shared ``/coordination/status`` every step (before
+  its decision and its planner status, so the peers and the coordinator hear it before
+  the bridge steps on);
+- subscribes ``/coordination/status`` (the peers') and ``/coordination/directive``
+  (the coordinator's). A directive out of schema is dropped by the codec, a directive
+  for an unknown ego by the link: both counted as ``directives_refused`` (diagnostics)
+  and logged (throttled);
+- publishes, per step, the virtual obstacles its coordination put in its observation
+  (the hold point of a ``yield``) on ``/<ego>/lmpc/coordination/hold`` for its MPC,
+  which takes them into its own observation (``lmpc_mpc.mpc_node``). The MPC computes
+  control k before the planner has processed observation k, so it acts on the hold of
+  step k-1: the same one-step lag as a decision (docs/ARCHITECTURE.md timing rule).
+"""
+from __future__ import annotations
+
+from typing import Any, Optional
+
+from std_msgs.msg import String
+
+from lmpc_msgs_py import qos as lmpc_qos
+from lmpc_msgs_py import topics
+from lmpc_msgs_py.base_node import LmpcNode
+from lmpc_msgs_py.codec import DecodeError, decode
+from lmpc_msgs_py.coordination import Directive, EgoStatus
+from lmpc_msgs_py.messages import AgentArray, Decision
+from lmpc_msgs_py.observation import Observation
+from lmpc_msgs_py.vocabulary import DecisionSpace
+
+from lmpc_llm_planner.coordination.link import EgoLink
+
+
+class CoordinationWiring:
+    """See the module docstring."""
+
+    def __init__(self, node: LmpcNode, *, ego_id: str, ego_ids: list[str], mode: str,
+                 space: DecisionSpace, on_silence: str = "distributed") -> None:
+        self.node = node
+        self.link = EgoLink(ego_id, ego_ids, mode, space, on_silence=on_silence)
+        self._status_pub = node.json_publisher(EgoStatus, topics.COORD_STATUS)
+        self._hold_pub = node.json_publisher(AgentArray, topics.COORD_HOLD)
+        self._hold_seq = 0
+        node.json_subscription(EgoStatus, topics.COORD_STATUS, self.link.on_status,
+                               shared=True)
+        node.create_subscription(String, topics.COORD_DIRECTIVE, self._on_directive,
+                                 lmpc_qos.STREAM)
+
+    def _on_directive(self, raw: String) -> None:
+        try:
+            d = decode(raw.data, Directive, topic=topics.COORD_DIRECTIVE)
+        except DecodeError as exc:
+            self.node.count_drop(topics.COORD_DIRECTIVE, exc.field, exc.reason)
+            self.link.refuse(f"field '{exc.field}': {exc.reason}")
+        else:
+            self.link.on_directive(d)
+        self._drain()
+
+    def _drain(self) -> None:
+        for line in self.link.events:
+            self.node.log_event(f"coordination:{line[:40]}", line)
+        self.link.events.clear()
+
+    def before(self, obs: Observation) -> Observation:
+        status, acted = self.link.prepare(obs)
+        self._status_pub.publish(status)
+        holds = self.link.holds(obs, acted)
+        self._hold_pub.publish(AgentArray(stamp_s=obs.stamp_s, seq=self._hold_seq,
+                                          sensing_range_m=obs.agents.sensing_range_m,
+                                          agents=holds))
+        self._hold_seq += 1
+        self._drain()
+        return acted
+
+    def after(self, decision: Optional[Decision], obs: Observation) -> Optional[Decision]:
+        return self.link.shape(decision, obs)
+
+    def counters(self) -> dict[str, Any]:
+        return {f"coordination_{k}" if not k.startswith("directives") else k: v
+                for k, v in self.link.stats().items()}
