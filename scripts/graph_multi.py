@@ -81,7 +81,8 @@ def node_specs(args: argparse.Namespace, run_dir: Path
     if args.coordination == "central":
         specs.append(("coordinator", "lmpc_llm_planner.coordinator_node", {
             "use_sim_time": True, "ego_ids": ",".join(ids), "backend": "rules",
-            "profile_file": str(run_dir / "profile_coordinator.json")}, None))
+            "profile_file": str(run_dir / "profile_coordinator.json"),
+            "stats_file": str(run_dir / "coordinator.json")}, None))
     for eid in ids:
         mpc: dict[str, object] = {"use_sim_time": True, "clock_mode": args.clock,
                                   "ego_id": eid,
@@ -107,7 +108,8 @@ def node_specs(args: argparse.Namespace, run_dir: Path
     specs.append(("bridge", "lmpc_bridge.multi_bridge_node", {
         "scenario": args.scenario, "seed": args.seed, "egos": args.egos,
         "clock_mode": args.clock, "wait_for_planner": with_planner and args.clock == "sync",
-        "max_time_s": args.max_time_s, "run_dir": str(run_dir)}, None))
+        "max_time_s": args.max_time_s, "run_dir": str(run_dir),
+        "coordination": args.coordination}, None))
     return specs
 
 
@@ -126,6 +128,13 @@ def profiles(run_dir: Path) -> dict[str, Any]:
     return out
 
 
+def _read_json(path: Path) -> Optional[dict[str, Any]]:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
 def summary_extra(args: argparse.Namespace, run_dir: Path, episode: dict[str, Any],
                   ended_early: dict[str, float]) -> dict[str, object]:
     """The multi-ego keys of the summary: per ego (no records), the joint figures."""
@@ -133,8 +142,11 @@ def summary_extra(args: argparse.Namespace, run_dir: Path, episode: dict[str, An
             | {"overall_cost": e.get("metrics", {}).get("overall_cost"),
                "time_s": e.get("metrics", {}).get("time_s")}
             for eid, e in episode.get("egos", {}).items()}
+    for eid, e in egos.items():
+        e["coordination"] = _read_json(run_dir / eid / "coordination.json")
     return {
         "egos": egos, "n_egos": args.egos, "coordination": args.coordination,
+        "coordinator": _read_json(run_dir / "coordinator.json"),
         "deadlock": episode.get("deadlock"), "ego_collisions": episode.get("ego_collisions"),
         "clear_s": episode.get("clear_s"), "joint_oc": episode.get("joint_oc"),
         "ended_early": ended_early,

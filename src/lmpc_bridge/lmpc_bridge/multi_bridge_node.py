@@ -85,6 +85,9 @@ class MultiBridgeConfig(BaseModel):
     run_dir: str = ""
     progress_period_s: float = Field(5.0, gt=0)
     linger_s: float = Field(1.0, ge=0)
+    coordination: Literal["none", "distributed", "central"] = "none"
+    """With coordination, step 0 also waits until every planner and the coordinator are
+    connected (their hold / directive publishers exist only then)."""
 
 
 @dataclass
@@ -228,6 +231,12 @@ class MultiBridgeNode(LmpcNode):
             status = topics.topic(topics.PLANNER_STATUS, ego.eid)
             if self.cfg.wait_for_planner and self.count_publishers(status) < 1:
                 return f"a publisher on {status} (llm_planner of {ego.eid})"
+            hold = topics.topic(topics.COORD_HOLD, ego.eid)
+            if self.cfg.coordination != "none" and self.count_publishers(hold) < 1:
+                return f"a publisher on {hold} (the coordination of {ego.eid}'s planner)"
+        if self.cfg.coordination == "central" \
+                and self.count_publishers(topics.COORD_DIRECTIVE) < 1:
+            return f"a publisher on {topics.COORD_DIRECTIVE} (coordinator)"
         return None
 
     def _publish_step(self) -> None:

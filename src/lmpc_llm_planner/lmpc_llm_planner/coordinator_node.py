@@ -16,14 +16,16 @@ A coordinator that crashes or hangs sends nothing; the egos' planners notice the
 """
 from __future__ import annotations
 
+import json
 import sys
+from pathlib import Path
 from typing import Optional
 
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
 
 from lmpc_msgs_py import topics
-from lmpc_msgs_py.base_node import LmpcNode, run_node
+from lmpc_msgs_py.base_node import JsonPublisher, LmpcNode, run_node
 from lmpc_msgs_py.coordination import Directive, EgoStatus
 
 from lmpc_llm_planner.coordination.coordinator import (
@@ -51,18 +53,31 @@ class CoordinatorNode(LmpcNode):
             description="rules (openai / local / replay: not implemented)")).value)
         period = float(self.declare_parameter("period_s", PERIOD_S).value)
         ttl = float(self.declare_parameter("ttl_s", TTL_S).value)
+        self.declare_parameter("stats_file", "", desc(
+            description="JSON file for the counters, written when the node ends"))
         self.core = CoordinatorCore(make_coordinator_backend(backend), period_s=period,
                                     ttl_s=ttl)
         self._by_stamp: dict[int, dict[str, EgoStatus]] = {}
         self._newest: dict[str, int] = {}
         self._done: set[int] = set()
         self.rounds = 0
-        self._pub = self.json_publisher(Directive, topics.COORD_DIRECTIVE)
-        self.json_subscription(EgoStatus, topics.COORD_STATUS, self._on_status, shared=True)
+        self._pub: Optional[JsonPublisher[Directive]] = None
+        self._sub = self.json_subscription(EgoStatus, topics.COORD_STATUS, self._on_status,
+                                           shared=True)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._connect_timer = self.create_timer(0.05, self._connect, clock=steady)
         self.create_timer(1.0, self._diagnostics, clock=steady)
         self.get_logger().info(f"coordinator up: backend {backend}, period {period} s, ttl "
                                f"{ttl} s, egos {', '.join(sorted(self.known))}")
+
+    def _connect(self) -> None:
+        """Create the directive publisher once every ego's status publisher is matched:
+        the bridge waits for it before step 0 (run_graph passes ``coordination``)."""
+        if self._sub.get_publisher_count() < len(self.known):
+            return
+        self._pub = self.json_publisher(Directive, topics.COORD_DIRECTIVE)
+        self._connect_timer.cancel()
+        self.get_logger().info("connected: every ego's status publisher matched")
 
     def _on_status(self, st: EgoStatus) -> None:
         if st.ego_id not in self.known:
@@ -77,6 +92,8 @@ class CoordinatorNode(LmpcNode):
         if k in self._done:
             return
         active = {eid for eid, n in self._newest.items() if n >= k - _key(PEER_ACTIVE_S)}
+        if st.stamp_s < 2 * PEER_ACTIVE_S:  # at the start: every ego (as the planners do)
+            active |= self.known
         have = self._by_stamp[k]
         if not active <= set(have) or not self.core.due(st.stamp_s):
             return
@@ -86,10 +103,29 @@ class CoordinatorNode(LmpcNode):
         with self.stage_times.stage("round (backend, directives)"):
             directives = self.core.on_statuses(statuses, st.stamp_s)
         for d in directives:
-            self._pub.publish(d)
+            if self._pub is not None:
+                self._pub.publish(d)
+        text = ", ".join(f"{d.ego_id} {d.command} p{d.priority}" for d in directives)
+        self.get_logger().info(f"round t={st.stamp_s:.1f}s on {', '.join(sorted(have))}: "
+                               f"{text or 'no directive'}")
         for line in self.core.refusals:
             self.log_event(f"refused:{line[:40]}", f"directive refused: {line}")
         self.core.refusals.clear()
+
+    def stats(self) -> dict[str, int]:
+        return {"rounds": self.rounds, "directives_issued": self.core.issued,
+                "directives_refused": self.core.refused,
+                "statuses_dropped": self.counters.get("dropped_messages", 0)}
+
+    def destroy_node(self) -> None:
+        """Also write :meth:`stats` to ``stats_file`` (when set)."""
+        path = str(self.get_parameter("stats_file").value)
+        if path:
+            try:
+                Path(path).write_text(json.dumps(self.stats(), indent=1))
+            except OSError as exc:
+                self.get_logger().warning(f"could not write {path}: {exc}")
+        super().destroy_node()
 
     def _diagnostics(self) -> None:
         self.publish_diagnostics(0, "ok", {

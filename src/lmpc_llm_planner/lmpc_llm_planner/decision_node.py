@@ -124,6 +124,8 @@ class DecisionNode(LmpcNode):
             return
         if obs is None:
             obs = self.assembler.newest(ego)
+        if obs is not None and not force and not self.inputs_ready(obs):
+            return  # e.g. the peers' statuses of this step (multi-ego coordination)
         self._pending = None
         self._process(ego, obs)
 
@@ -148,6 +150,10 @@ class DecisionNode(LmpcNode):
                 if decision.source == "fallback":
                     self._fallbacks += 1
         self._publish_status(ego.stamp_s)
+
+    def inputs_ready(self, obs: Observation) -> bool:
+        """Whether to decide on ``obs`` now (else wait, at most ``ASSEMBLY_WAIT_S``)."""
+        return True
 
     def before_decide(self, obs: Observation) -> Observation:
         """The observation the core decides on (the coordination's hook; as is here)."""

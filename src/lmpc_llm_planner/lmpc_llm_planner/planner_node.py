@@ -13,6 +13,7 @@ Topics and timing: see ``decision_node.py``.
 """
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 from typing import Any, Optional
@@ -89,9 +90,24 @@ class PlannerNode(DecisionNode):
         if not self.ego_id:
             raise ValueError(f"coordination {mode!r} needs the parameter ego_id")
         wiring = CoordinationWiring(self, ego_id=self.ego_id, ego_ids=ego_ids or [self.ego_id],
-                                    mode=mode, space=space, on_silence=on_silence)
-        self.get_logger().info(f"coordination {mode} among {', '.join(wiring.link.known)}")
+                                    mode=mode, space=space, on_silence=on_silence,
+                                    on_peer=lambda: self._try_pending(force=False))
+        self.get_logger().info(f"coordination {mode} among {', '.join(sorted(wiring.link.known))}")
         return wiring
+
+    def destroy_node(self) -> None:
+        """Also write the coordination's counters to ``run_dir/coordination.json``."""
+        run_dir = self.get_parameter("run_dir").value
+        if self.coordination is not None and run_dir:
+            try:
+                (Path(run_dir) / "coordination.json").write_text(json.dumps(
+                    self.coordination.link.stats(), indent=1))
+            except OSError as exc:
+                self.get_logger().warning(f"could not write coordination.json: {exc}")
+        super().destroy_node()
+
+    def inputs_ready(self, obs: Observation) -> bool:
+        return self.coordination is None or self.coordination.ready(obs)
 
     def before_decide(self, obs: Observation) -> Observation:
         return obs if self.coordination is None else self.coordination.before(obs)

@@ -174,7 +174,7 @@ class LmpcNode(Node):
         check_seq: bool = True,
         ego: Optional[str] = None,
         shared: bool = False,
-    ) -> None:
+    ) -> Any:
         """Subscribe to ``name``; ``callback`` only ever sees valid, in-order messages.
 
         ``ego``: the topic of that ego (the multi-ego bridge), not this node's.
@@ -200,6 +200,7 @@ class LmpcNode(Node):
         sub = self.create_subscription(String, full, on_raw, qos)
         if not shared:
             self._inputs[full] = sub
+        return sub
 
     # -- counters and throttled logs -----------------------------------------------------
     def count_drop(self, topic: str, field: str, reason: str) -> None:

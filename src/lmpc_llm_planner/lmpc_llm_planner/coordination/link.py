@@ -11,8 +11,10 @@ ego, with the same pieces (``EgoCoordination``, ``rules.resolve``):
   newest stamp for which this ego holds its own status and one of every other ego that is
   still reporting (a peer silent for ``PEER_ACTIVE_S`` has left: through, or its planner
   died). Every ego therefore resolves on the same statuses (one step older than its own
-  observation, since the peers' statuses of this step are computed in parallel), so they
-  agree on who goes first;
+  observation when a peer's status of this step is late), so they agree on who goes
+  first. The planner node waits for the peers' statuses of its step (``waiting_for``, at
+  most its assembly wait of 0.2 s wall): in sync mode they come within milliseconds, so
+  the egos resolve on the statuses of the same step, as in-process;
 - ``central``: a directive for this ego is followed when it arrives; the coordinator is
   **silent** when no directive (to any ego) came for ``ttl_s`` of sim time (none yet: the
   first ``ttl_s`` of the episode count as not silent). An ego that then sees a conflict
@@ -112,13 +114,40 @@ class EgoLink:
         self.events.append(f"refused directive: {reason}")
 
     # -- per step ------------------------------------------------------------------------
-    def prepare(self, obs: Observation) -> tuple[EgoStatus, Observation]:
-        """This step's status (to publish) and the observation the planner acts on."""
-        now = obs.stamp_s
+    def report(self, obs: Observation) -> Optional[EgoStatus]:
+        """This step's status, once per stamp (None: already reported)."""
+        k = _key(obs.stamp_s)
+        if k in self._own:
+            return None
         st = self.ego.status(obs)
-        self._own[_key(now)] = st
-        for k in sorted(self._own)[:-KEEP_STAMPS]:
-            del self._own[k]
+        self._own[k] = st
+        for old in sorted(self._own)[:-KEEP_STAMPS]:
+            del self._own[old]
+        return st
+
+    def waiting_for(self, now: float) -> tuple[str, ...]:
+        """``distributed``: the peers whose status of this stamp is still missing (active
+        ones, and, during the first ``PEER_ACTIVE_S * 2`` of the episode, the ones not heard
+        from yet); the node waits for them up to its assembly wait."""
+        if self.mode != "distributed":
+            return ()
+        k = _key(now)
+        out = []
+        for eid in sorted(self.known - {self.ego_id}):
+            store = self._peers.get(eid)
+            if not store:
+                if now < 2 * PEER_ACTIVE_S:
+                    out.append(eid)
+            elif max(store) >= _key(now - PEER_ACTIVE_S) and k not in store:
+                out.append(eid)
+        return tuple(out)
+
+    def prepare(self, obs: Observation) -> tuple[Optional[EgoStatus], Observation]:
+        """This step's status (to publish, None when ``report`` gave it already) and the
+        observation the planner acts on."""
+        now = obs.stamp_s
+        new = self.report(obs)
+        st = self._own[_key(now)]
         if self.mode == "distributed":
             self._distributed(now)
         elif self.mode == "central":
@@ -135,7 +164,7 @@ class EgoLink:
                 self.counters["silent_steps"] += 1
                 if self.on_silence == "distributed":
                     self._distributed(now)
-        return st, (self.ego.apply(obs) if self.mode != "none" else obs)
+        return new, (self.ego.apply(obs) if self.mode != "none" else obs)
 
     def shape(self, decision: Optional[Decision], obs: Observation) -> Optional[Decision]:
         return decision if self.mode == "none" else self.ego.shape(decision, obs)
