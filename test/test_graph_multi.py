@@ -186,3 +186,28 @@ def test_namespaced_topics_and_bad_directives_refused(tmp_path: Path, domain_id:
         assert st["directives_refused"] >= 2, (eid, st)
     log = (tmp_path / "run" / "planner_ego_1.log").read_text()
     assert "unknown ego 'ego_7'" in log and "priority" in log
+
+
+def test_a_hung_mpc_brakes_its_own_ego_only(tmp_path: Path, domain_id: int) -> None:
+    """RELIABILITY.md per ego: ego_1's MPC stops answering for ~3 s wall (SIGSTOP); the
+    bridge steps on after its control timeout with ego_1 braking, ego_2 on its controls."""
+    proc = _start_graph(tmp_path, domain_id, "--coordination", "distributed")
+    run_dir = tmp_path / "run"
+    try:
+        _wait_log(run_dir / "bridge.log", "progress t=5.0s", proc, timeout_s=180)
+        pids = [p for p in graph_processes(domain_id)
+                if b"ego_id:=ego_1" in Path(f"/proc/{p}/cmdline").read_bytes()
+                and b"lmpc_mpc.mpc_node" in Path(f"/proc/{p}/cmdline").read_bytes()]
+        assert len(pids) == 1, pids
+        os.kill(pids[0], signal.SIGSTOP)
+        time.sleep(3.0)
+        os.kill(pids[0], signal.SIGCONT)
+        s = _finish(proc, tmp_path)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    _assert_both_through(s)
+    assert s["egos"]["ego_1"]["late_controls"] >= 2, s["egos"]["ego_1"]
+    assert s["egos"]["ego_2"]["late_controls"] == 0, s["egos"]["ego_2"]
+    assert "ego_1: no control for step" in (run_dir / "bridge.log").read_text()
