@@ -24,6 +24,7 @@ controls and control latency (median / p99 / max) and the joint figures.
 """
 from __future__ import annotations
 
+import functools
 import json
 import math
 import sys
@@ -145,12 +146,11 @@ class MultiBridgeNode(LmpcNode):
                                                lmpc_qos.MIRROR))
             self.egos[eid] = ego
             self.json_subscription(Control, topics.CONTROL,
-                                   lambda m, e=ego: self._on_control(e, m), ego=eid)
+                                   functools.partial(self._on_control, ego), ego=eid)
             self.json_subscription(Decision, topics.DECISION,
-                                   lambda m, e=ego: e.stats.decisions.setdefault(
-                                       m.decision_id, m.source), ego=eid)
+                                   functools.partial(self._on_decision, ego), ego=eid)
             self.json_subscription(PlannerStatus, topics.PLANNER_STATUS,
-                                   lambda m, e=ego: self._on_planner_status(e, m), ego=eid)
+                                   functools.partial(self._on_planner_status, ego), ego=eid)
             ego.pub_map.publish(self.sim.egos[eid].map)
         self.started = False
         self.finished = False
@@ -185,6 +185,9 @@ class MultiBridgeNode(LmpcNode):
             ego.latest_control = msg
         if self.cfg.clock_mode == "sync":
             self._try_sync_step()
+
+    def _on_decision(self, ego: _Ego, msg: Decision) -> None:
+        ego.stats.decisions.setdefault(msg.decision_id, msg.source)
 
     def _on_planner_status(self, ego: _Ego, msg: PlannerStatus) -> None:
         ego.planner_stamp_s = max(ego.planner_stamp_s, msg.stamp_s)
