@@ -211,3 +211,17 @@ def test_a_hung_mpc_brakes_its_own_ego_only(tmp_path: Path, domain_id: int) -> N
     assert s["egos"]["ego_1"]["late_controls"] >= 2, s["egos"]["ego_1"]
     assert s["egos"]["ego_2"]["late_controls"] == 0, s["egos"]["ego_2"]
     assert "ego_1: no control for step" in (run_dir / "bridge.log").read_text()
+
+
+def test_without_coordination_the_encounter_fails(tmp_path: Path, domain_id: int) -> None:
+    """The control case: on the same scene two egos on their own planners (``none``) do
+    not both get through (in-process with lmpc-rules they stop facing each other: a
+    deadlock; the graph does the same), and the joint outcome and exit code say so."""
+    run = run_graph(tmp_path, domain_id, "--scenario", "narrow", "--seed", str(SEED),
+                    "--planner", "rules", "--coordination", "none", "--quiet")
+    s = run.summary
+    assert s["outcome"] in ("collision", "timeout"), s["detail"]
+    assert run.returncode == {"collision": 1, "timeout": 2}[s["outcome"]]
+    assert s["ego_collisions"] > 0 or s["deadlock"] is True, s
+    assert "coordinator" not in s["nodes"]
+    assert all(e["coordination"] is None for e in s["egos"].values())
