@@ -55,14 +55,17 @@ class CoordinationWiring:
             0.05, self._connect, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _connect(self) -> None:
-        """Create the hold publisher once this planner hears every ego's status publisher
-        (and, ``central``, the coordinator's directive publisher): the bridge waits for
+        """Create the hold publisher once this planner hears every ego's status publisher,
+        its own status publisher is matched by every planner (and the coordinator), and,
+        ``central``, it hears the coordinator's directive publisher: the bridge waits for
         the hold publishers before step 0, so no ego starts before its coordination is
         connected (DDS discovery can take seconds on a loaded machine)."""
         need_coordinator = self.link.mode == "central"
-        if self._status_sub.get_publisher_count() < len(self.link.known) or (
+        readers = len(self.link.known) + (1 if need_coordinator else 0)
+        if self._status_sub.get_publisher_count() < len(self.link.known) \
+                or self._status_pub.subscription_count() < readers or (
                 need_coordinator and self._directive_sub.get_publisher_count() < 1):
-            return
+            return  # both sides of each match: a reader that sees a writer is not enough
         self._hold_pub = self.node.json_publisher(AgentArray, topics.COORD_HOLD)
         self._connect_timer.cancel()
         self.node.get_logger().info("coordination connected: every ego's status"

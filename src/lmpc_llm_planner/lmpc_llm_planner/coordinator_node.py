@@ -3,8 +3,9 @@
 
 Subscribes the shared ``/coordination/status`` (every ego's planner publishes its
 ``EgoStatus`` each step) and publishes ``Directive``s on ``/coordination/directive``.
-A round runs on a **complete** set of statuses: the first stamp at which every ego
-still reporting (a status within ``PEER_ACTIVE_S`` sim of that stamp) has sent one, once
+A round runs on a **complete** set of statuses: the first stamp at which every ego of
+the graph has sent one, except egos that reported and then fell silent for
+``PEER_ACTIVE_S`` sim (through, or their planner died), once
 the core is due (every ``period_s`` of sim time), as the in-process coordinator does
 with the statuses of one step. Parameters: ``ego_ids`` (the graph's egos, comma-separated;
 a status from another ego is dropped and counted), ``backend`` (``rules``; the LLM
@@ -91,9 +92,11 @@ class CoordinatorNode(LmpcNode):
             self._done.discard(old)
         if k in self._done:
             return
-        active = {eid for eid, n in self._newest.items() if n >= k - _key(PEER_ACTIVE_S)}
-        if st.stamp_s < 2 * PEER_ACTIVE_S:  # at the start: every ego (as the planners do)
-            active |= self.known
+        # every ego of the graph takes part unless it reported and then fell silent
+        # (through, or its planner died): a round never runs on one side of a conflict
+        # because the other side's statuses do not arrive yet (the egos then fall back)
+        active = {eid for eid in self.known if eid not in self._newest
+                  or self._newest[eid] >= k - _key(PEER_ACTIVE_S)}
         have = self._by_stamp[k]
         if not active <= set(have) or not self.core.due(st.stamp_s):
             return
