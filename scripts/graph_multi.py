@@ -16,8 +16,9 @@ import json
 from pathlib import Path
 from typing import Any, Optional
 
-MULTI_FAMILIES = ("narrow",)
-"""Families whose scenes carry several egos (``params["egos"]``)."""
+MULTI_FAMILIES = ("narrow", "usi-multi", "merge")
+"""Families whose scenes carry several egos (``params["egos"]``; usi-multi and merge come
+with the branch that adds them, as in scripts/multi.py)."""
 COORDINATION = ("none", "distributed", "central")
 MULTI_PLANNERS = ("rules", "none")
 """The planners of a multi-ego graph (the LLM backends take no directive yet)."""
