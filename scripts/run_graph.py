@@ -35,6 +35,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, Optional, Sequence
 
+if __package__:  # lmpc_scripts.run_graph
+    from . import graph_multi
+else:  # run by path (scripts/ is on sys.path)
+    import graph_multi
+
 SCRIPTS = Path(__file__).resolve().parent
 EXIT_CODES = {"reached": 0, "collision": 1, "timeout": 2, "error": 3, "off_route": 4}
 
@@ -120,13 +125,22 @@ class Graph:
 
     def start_node(self, name: str, module: str, params: dict[str, object],
                    cpus: Optional[set[int]] = None,
-                   env: Optional[dict[str, str]] = None) -> Child:
-        """Start ``python -m module`` with ROS parameters (and ``env`` added)."""
+                   env: Optional[dict[str, str]] = None, ns: Optional[str] = None) -> Child:
+        """Start ``python -m module`` with ROS parameters (and ``env`` added; in the ROS
+        namespace ``/ns`` when given)."""
         args = [sys.executable, "-m", module, "--ros-args"]
+        if ns:
+            args += ["-r", f"__ns:=/{ns}"]
         for key, value in params.items():
             text = str(value).lower() if isinstance(value, bool) else str(value)
             args += ["-p", f"{key}:={text}"]
         return self.start(name, args, cpus, env)
+
+    def note(self, text: str) -> None:
+        """A line of the supervisor's own in the echoed log."""
+        if self.echo:
+            with self._print_lock:
+                _say(f"[run_graph] {text}")
 
     def start(self, name: str, args: list[str], cpus: Optional[set[int]] = None,
               extra_env: Optional[dict[str, str]] = None) -> Child:
@@ -294,6 +308,15 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
                          "(default: the packaged one). It must equal the MPC's (same hash), "
                          "or the graph does not start")
     ap.add_argument("--clock", choices=["sync", "realtime"], default="sync")
+    ap.add_argument("--egos", type=int, metavar="N",
+                    help="controlled vehicles ego_1..ego_N, one MPC and one planner process "
+                         "each under /ego_k/lmpc/... (default: the family's; 1 = today's "
+                         "single-ego graph under /lmpc/...; docs/MULTI.md)")
+    ap.add_argument("--coordination", choices=["none", "distributed", "central"],
+                    default="none",
+                    help="several egos: none (independent), distributed (the planners "
+                         "resolve shared conflicts by a fixed rule set), central (a "
+                         "coordinator node sends directives)")
     ap.add_argument("--run-dir", type=Path,
                     help="run folder (default runs/<scenario>-<seed>-<time>; with --scene "
                          "runs/<scene file stem>-<time>)")
@@ -346,6 +369,8 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
         ap.error(f"--extra-subscribers must be >= 0, got {args.extra_subscribers}")
     if args.instruction is not None and args.planner == "none":
         ap.error("--instruction needs a planner (the MPC baseline reads no instruction)")
+    if args.egos is not None and args.egos < 1:
+        ap.error(f"--egos must be >= 1, got {args.egos}")
     return args
 
 
@@ -450,11 +475,13 @@ def run(args: argparse.Namespace, stops: Optional[StopSignals] = None) -> dict[s
             return scene_failure(run_dir, args, f"stopped by {_signal_names(stops)} while "
                                  "building the scene (no node was started)")
         args.scenario, args.seed = scene.family, scene.seed
-    mismatch = decision_space_mismatch(args)
+    mismatch = decision_space_mismatch(args) or graph_multi.check_args(args, run_dir / "scene")
     if mismatch is not None:
         stops.stopping = True
         return scene_failure(run_dir, args, mismatch)
     graph = Graph(run_dir, ros_env(args.domain_id), echo=not args.quiet)
+    if args.egos > 1:
+        return _run_multi(args, stops, run_dir, graph)
     params = node_params(args, run_dir)
     # Keep the planner (a local LLM may saturate a core) off the core the MPC uses.
     cpus = sorted(os.sched_getaffinity(0))
@@ -511,6 +538,29 @@ def run(args: argparse.Namespace, stops: Optional[StopSignals] = None) -> dict[s
     wall_s = time.monotonic() - t0
     return summarize(run_dir, graph, wall_s, crashed=crashed, interrupted=interrupted, args=args,
                      signals=stops.received)
+
+
+def _run_multi(args: argparse.Namespace, stops: StopSignals, run_dir: Path,
+               graph: Graph) -> dict[str, object]:
+    """``--egos N`` > 1: the multi-ego graph (``graph_multi``)."""
+    t0 = time.monotonic()
+    interrupted = False
+    crashed: list[str] = []
+    ended_early: dict[str, float] = {}
+    try:
+        crashed, ended_early = graph_multi.start_and_watch(args, graph, run_dir, t0)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        stops.stopping = True
+        graph.stop()
+    wall_s = time.monotonic() - t0
+    summary = summarize(run_dir, graph, wall_s, crashed=crashed, interrupted=interrupted,
+                        args=args, signals=stops.received)
+    episode_path = run_dir / "episode.json"
+    episode = json.loads(episode_path.read_text()) if episode_path.exists() else {}
+    summary.update(graph_multi.summary_extra(args, run_dir, episode, ended_early))
+    return _write_summary(summary, run_dir, args)
 
 
 def rt_nodes(args: argparse.Namespace) -> tuple[str, ...]:

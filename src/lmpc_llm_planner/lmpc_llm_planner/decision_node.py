@@ -124,6 +124,8 @@ class DecisionNode(LmpcNode):
             return
         if obs is None:
             obs = self.assembler.newest(ego)
+        if obs is not None and not force and not self.inputs_ready(obs):
+            return  # e.g. the peers' statuses of this step (multi-ego coordination)
         self._pending = None
         self._process(ego, obs)
 
@@ -137,8 +139,10 @@ class DecisionNode(LmpcNode):
             self.log_event("stale", f"ego state at t={ego.stamp_s:.2f} s is older than "
                            f"{STALE_AFTER_S} s vs /clock: no new decision")
         elif self.core is not None:
+            obs = self.before_decide(obs)
             with self.stage_times.stage("decide (core, backend)"):
                 decision = self._safe_decide(obs)
+            decision = self.after_decide(decision, obs)
             if decision is not None:
                 self._decision_pub.publish(decision)
                 self._last_decision_id = decision.decision_id
@@ -146,6 +150,19 @@ class DecisionNode(LmpcNode):
                 if decision.source == "fallback":
                     self._fallbacks += 1
         self._publish_status(ego.stamp_s)
+
+    def inputs_ready(self, obs: Observation) -> bool:
+        """Whether to decide on ``obs`` now (else wait, at most ``ASSEMBLY_WAIT_S``)."""
+        return True
+
+    def before_decide(self, obs: Observation) -> Observation:
+        """The observation the core decides on (the coordination's hook; as is here)."""
+        return obs
+
+    def after_decide(self, decision: Optional[Decision],
+                     obs: Observation) -> Optional[Decision]:
+        """The decision to publish (the coordination's hook; as is here)."""
+        return decision
 
     def _safe_decide(self, obs: Observation) -> Optional[Decision]:
         # The core never raises on backend output; this guard keeps the barrier alive

@@ -35,6 +35,8 @@ PAIR_WAIT_S = 0.2
 BARRIER_WAIT_S = 1.0
 CLOCK_WATCHDOG_S = 2.0
 TICK_S = 0.01
+HOLD_STALE_S = 0.35
+"""A coordination hold message older than this (sim) vs the ego state is not applied."""
 
 
 class MpcNode(LmpcNode):
@@ -91,6 +93,9 @@ class MpcNode(LmpcNode):
         self.json_subscription(AgentArray, topics.AGENTS, self._on_agents)
         self.json_subscription(SignalStates, topics.SIGNALS, self._on_signals)
         self.json_subscription(Decision, topics.DECISION, self._on_decision)
+        self._holds: dict[float, AgentArray] = {}
+        if self.ego_id:  # a multi-ego graph: the coordination's hold point (issue 18)
+            self.json_subscription(AgentArray, topics.COORD_HOLD, self._on_hold)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(TICK_S, self._tick, clock=steady)
         self.create_timer(1.0, self._diagnostics, clock=steady)
@@ -138,6 +143,22 @@ class MpcNode(LmpcNode):
             self.log_event("decision_space", f"REFUSED decision {msg.decision_id} on {topic}: "
                            f"{refusal}", level="error")
         self._tick()
+
+    def _on_hold(self, msg: AgentArray) -> None:
+        self._holds[msg.stamp_s] = msg
+        self._trim(self._holds)
+
+    def _with_holds(self, agents: AgentArray, stamp_s: float) -> AgentArray:
+        """``agents`` plus the virtual obstacles of the planner's newest hold message not
+        after ``stamp_s`` and at most ``HOLD_STALE_S`` older (coordination_wiring.py)."""
+        hold = self._newest(self._holds, stamp_s)
+        if hold is None or not hold.agents or stamp_s - hold.stamp_s > HOLD_STALE_S + 1e-9:
+            return agents
+        self.counters["hold_steps"] += 1
+        ids = {a.id for a in agents.agents}
+        extra = tuple(a for a in hold.agents if a.id not in ids)
+        return agents.model_copy(update={"agents": tuple(sorted(
+            (*agents.agents, *extra), key=lambda a: a.id))})
 
     @staticmethod
     def _trim(store: dict) -> None:
@@ -200,6 +221,8 @@ class MpcNode(LmpcNode):
                 agents = AgentArray(stamp_s=max(0.0, ego.stamp_s - 1e3), seq=0)
             if signals is None:
                 signals = SignalStates(stamp_s=ego.stamp_s, seq=0)
+            if self._holds:
+                agents = self._with_holds(agents, ego.stamp_s)
             self._compute(Observation(map=self._map, ego=ego, agents=agents, signals=signals),
                           now_s)
 

@@ -157,9 +157,12 @@ class LmpcNode(Node):
         return topics.topic(name, self.ego_id)
 
     def json_publisher(
-        self, cls: type[M], name: str, qos: QoSProfile = lmpc_qos.PRODUCED
+        self, cls: type[M], name: str, qos: QoSProfile = lmpc_qos.PRODUCED, *,
+        ego: Optional[str] = None,
     ) -> JsonPublisher[M]:
-        return JsonPublisher(self, cls, self.topic(name), qos, self.stage_times)
+        """Publisher on ``name`` (of this node's ego, or of ``ego``: the multi-ego bridge)."""
+        full = self.topic(name) if ego is None else topics.topic(name, ego)
+        return JsonPublisher(self, cls, full, qos, self.stage_times)
 
     def json_subscription(
         self,
@@ -169,9 +172,16 @@ class LmpcNode(Node):
         qos: QoSProfile = lmpc_qos.STREAM,
         *,
         check_seq: bool = True,
-    ) -> None:
-        """Subscribe to ``name``; ``callback`` only ever sees valid, in-order messages."""
-        full = self.topic(name)
+        ego: Optional[str] = None,
+        shared: bool = False,
+    ) -> Any:
+        """Subscribe to ``name``; ``callback`` only ever sees valid, in-order messages.
+
+        ``ego``: the topic of that ego (the multi-ego bridge), not this node's.
+        ``shared``: a topic with one publisher per ego (``/coordination/status``): no
+        sequence check across publishers, not in the single-producer check."""
+        full = self.topic(name) if ego is None else topics.topic(name, ego)
+        check_seq = check_seq and not shared
         gate = SequenceGate(full)
         decode_key = f"decode {full}"
 
@@ -187,7 +197,10 @@ class LmpcNode(Node):
             self.stage_times.add(decode_key, (time.perf_counter() - t0) * 1e3)
             callback(msg)
 
-        self._inputs[full] = self.create_subscription(String, full, on_raw, qos)
+        sub = self.create_subscription(String, full, on_raw, qos)
+        if not shared:
+            self._inputs[full] = sub
+        return sub
 
     # -- counters and throttled logs -----------------------------------------------------
     def count_drop(self, topic: str, field: str, reason: str) -> None:

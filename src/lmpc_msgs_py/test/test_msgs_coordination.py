@@ -98,3 +98,13 @@ def test_directive_without_schema_on_the_wire_is_refused() -> None:
     data = _dump(directive())
     del data["schema"]
     assert refused(data, Directive).field == "schema"
+
+
+def test_topic_names_single_and_multi_ego() -> None:
+    from lmpc_msgs_py import topics
+
+    assert topics.topic(topics.EGO_STATE) == "/lmpc/ego_state"  # single ego: unchanged
+    assert topics.topic(topics.EGO_STATE, "ego_2") == "/ego_2/lmpc/ego_state"
+    assert topics.topic(topics.PLANNER_STATUS, "ego_1") == "/ego_1/lmpc/planner/status"
+    assert topics.topic(topics.COORD_STATUS, "ego_1") == "/coordination/status"  # shared
+    assert topics.topic(topics.CLOCK, "ego_1") == "/clock"

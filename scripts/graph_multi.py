@@ -1,0 +1,196 @@
+"""The multi-ego graph of ``run_graph.py --egos N`` (issue 18, docs/MULTI.md).
+
+One bridge (``lmpc_bridge.multi_bridge_node``) drives ``ego_1 … ego_N``; each ego has one
+MPC and (unless ``--planner none``) one planner process, started in the ROS namespace
+``/<ego_id>`` with ``ego_id`` set, so their node names are ``/<ego_id>/mpc_controller``,
+``/<ego_id>/llm_planner`` and their topics ``/<ego_id>/lmpc/...``. With ``--coordination
+central`` a ``coordinator`` process (``lmpc_llm_planner.coordinator_node``, rules backend)
+joins; with ``distributed`` the planners resolve among themselves. The coordinator is
+the one process allowed to end early: the egos fall back (``coordination/link.py``) and
+the run goes on (the summary says when it ended).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any, Optional
+
+MULTI_FAMILIES = ("narrow", "usi-multi", "merge")
+"""Families whose scenes carry several egos (``params["egos"]``; usi-multi and merge come
+with the branch that adds them, as in scripts/multi.py)."""
+COORDINATION = ("none", "distributed", "central")
+MULTI_PLANNERS = ("rules", "none")
+"""The planners of a multi-ego graph (the LLM backends take no directive yet)."""
+
+
+def scene_egos(family: str, seed: int, work_dir: Path) -> int:
+    """How many egos the scene of ``family`` / ``seed`` has (1: a single-ego family)."""
+    if family not in MULTI_FAMILIES:
+        return 1
+    from lmpc_bridge.multi_scene import ego_specs
+    from lmpc_bridge.scenarios import build_scene
+
+    return len(ego_specs(build_scene(family, seed, work_dir=work_dir)))
+
+
+def check_args(args: argparse.Namespace, work_dir: Path) -> Optional[str]:
+    """Fill ``args.egos`` (from the family when not given); why the run cannot go, or None.
+    ``args.egos`` 1 is today's single-ego graph."""
+    if args.scene is not None:
+        if (args.egos or 1) != 1 or args.coordination != "none":
+            return "--egos / --coordination need a multi-ego family (--scenario), not --scene"
+        args.egos = 1
+        return None
+    try:
+        n = scene_egos(args.scenario, args.seed, work_dir)
+    except Exception as exc:  # noqa: BLE001 - a scene that cannot be built: one line
+        return f"scene {args.scenario}/{args.seed}: {exc}"
+    if args.egos is None:
+        args.egos = n
+    if args.egos != 1 and args.egos != n:
+        return (f"--egos {args.egos}: scene {args.scenario}/{args.seed} has {n} ego(s) "
+                f"(--egos 1 runs ego_1 alone)")
+    if args.egos == 1:
+        if args.coordination != "none":
+            return f"--coordination {args.coordination} needs several egos (--egos {n})"
+        return None
+    if args.planner not in MULTI_PLANNERS:
+        return (f"--planner {args.planner}: a multi-ego graph runs the planners "
+                f"{', '.join(MULTI_PLANNERS)}")
+    if args.coordination != "none" and args.planner == "none":
+        return f"--coordination {args.coordination} needs a planner (--planner rules)"
+    for flag, value in (("--record", args.record), ("--instruction", args.instruction),
+                        ("--scene", args.scene), ("--extra-subscribers",
+                                                  args.extra_subscribers)):
+        if value:
+            return f"{flag} is not supported with several egos yet"
+    return None
+
+
+def ego_ids(n: int) -> list[str]:
+    return [f"ego_{k + 1}" for k in range(n)]
+
+
+def node_specs(args: argparse.Namespace, run_dir: Path
+               ) -> list[tuple[str, str, dict[str, object], Optional[str]]]:
+    """(name, module, parameters, namespace) of every node, in start order (the bridge
+    last: it waits for the others anyway)."""
+    ids = ego_ids(args.egos)
+    with_planner = args.planner != "none"
+    specs: list[tuple[str, str, dict[str, object], Optional[str]]] = []
+    if args.coordination == "central":
+        specs.append(("coordinator", "lmpc_llm_planner.coordinator_node", {
+            "use_sim_time": True, "ego_ids": ",".join(ids), "backend": "rules",
+            "profile_file": str(run_dir / "profile_coordinator.json"),
+            "stats_file": str(run_dir / "coordinator.json")}, None))
+    for eid in ids:
+        mpc: dict[str, object] = {"use_sim_time": True, "clock_mode": args.clock,
+                                  "ego_id": eid,
+                                  "profile_file": str(run_dir / f"profile_mpc_{eid}.json")}
+        if args.mpc_config is not None:
+            mpc["config_file"] = str(args.mpc_config.resolve())
+        specs.append((f"mpc_{eid}", "lmpc_mpc.mpc_node", mpc, eid))
+        if with_planner:
+            ego_dir = run_dir / eid
+            ego_dir.mkdir(parents=True, exist_ok=True)
+            planner: dict[str, object] = {
+                "use_sim_time": True, "backend": args.planner, "run_dir": str(ego_dir),
+                "ego_id": eid, "ego_ids": ",".join(ids), "coordination": args.coordination,
+                "profile_file": str(run_dir / f"profile_planner_{eid}.json")}
+            if args.planner_config:
+                planner["config_file"] = str(args.planner_config.resolve())
+            if args.decision_space is not None:
+                planner["decision_space_file"] = str(args.decision_space.resolve())
+            for name in ("decision_latency", "emergency_latency"):
+                if getattr(args, name) is not None:
+                    planner[f"{name}_s"] = float(getattr(args, name))
+            specs.append((f"planner_{eid}", "lmpc_llm_planner.planner_node", planner, eid))
+    specs.append(("bridge", "lmpc_bridge.multi_bridge_node", {
+        "scenario": args.scenario, "seed": args.seed, "egos": args.egos,
+        "clock_mode": args.clock, "wait_for_planner": with_planner and args.clock == "sync",
+        "max_time_s": args.max_time_s, "run_dir": str(run_dir),
+        "coordination": args.coordination}, None))
+    return specs
+
+
+def may_end_early(name: str) -> bool:
+    """The coordinator may crash or be killed: the egos fall back, the run goes on."""
+    return name == "coordinator"
+
+
+def profiles(run_dir: Path) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for path in sorted(run_dir.glob("profile_*.json")):
+        try:
+            out[path.stem[len("profile_"):]] = json.loads(path.read_text())["stages_ms"]
+        except (OSError, ValueError, KeyError):
+            continue
+    return out
+
+
+def _read_json(path: Path) -> Optional[dict[str, Any]]:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def summary_extra(args: argparse.Namespace, run_dir: Path, episode: dict[str, Any],
+                  ended_early: dict[str, float]) -> dict[str, object]:
+    """The multi-ego keys of the summary: per ego (no records), the joint figures."""
+    egos = {eid: {k: v for k, v in e.items() if k != "metrics"}
+            | {"overall_cost": e.get("metrics", {}).get("overall_cost"),
+               "time_s": e.get("metrics", {}).get("time_s")}
+            for eid, e in episode.get("egos", {}).items()}
+    for eid, e in egos.items():
+        e["coordination"] = _read_json(run_dir / eid / "coordination.json")
+    return {
+        "egos": egos, "n_egos": args.egos, "coordination": args.coordination,
+        "coordinator": _read_json(run_dir / "coordinator.json"),
+        "deadlock": episode.get("deadlock"), "ego_collisions": episode.get("ego_collisions"),
+        "clear_s": episode.get("clear_s"), "joint_oc": episode.get("joint_oc"),
+        "ended_early": ended_early,
+        "profile_ms": profiles(run_dir) | ({"bridge": episode["profile_ms"]}
+                                           if episode.get("profile_ms") else {}),
+    }
+
+
+def start_and_watch(args: argparse.Namespace, graph: Any, run_dir: Path, t0: float
+                    ) -> tuple[list[str], dict[str, float]]:
+    """Start the nodes (``graph``: run_graph's ``Graph``) and watch them until the bridge
+    ends: the names of nodes that stopped early (and ``wall-timeout``), and when (wall s
+    after the start) a node allowed to end early did. ``KeyboardInterrupt`` propagates."""
+    import os
+    import time
+
+    cpus = sorted(os.sched_getaffinity(0))
+    split = len(cpus) >= 2
+    for name, module, params, ns in node_specs(args, run_dir):
+        cpu_set = None  # as the single-ego graph: planners on the last core, MPCs off it
+        if split and name.startswith("planner_"):
+            cpu_set = {cpus[-1]}
+        elif split and name.startswith("mpc_"):
+            cpu_set = set(cpus[:-1])
+        graph.start_node(name, module, params, cpus=cpu_set, ns=ns)
+    crashed: list[str] = []
+    ended_early: dict[str, float] = {}
+    bridge = next(c for c in graph.children if c.name == "bridge")
+    while bridge.proc.poll() is None:
+        for child in graph.children:
+            if child is bridge or child.proc.poll() is None:
+                continue
+            if may_end_early(child.name):
+                if child.name not in ended_early:
+                    ended_early[child.name] = round(time.monotonic() - t0, 3)
+                    graph.note(f"{child.name} ended (exit {child.proc.returncode}): the egos "
+                               "fall back to their own coordination")
+            elif child.name not in crashed:
+                crashed.append(child.name)
+        if crashed:
+            break
+        if time.monotonic() - t0 > args.wall_timeout_s:
+            crashed.append("wall-timeout")
+            break
+        time.sleep(0.05)
+    return crashed, ended_early
