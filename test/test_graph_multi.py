@@ -68,6 +68,12 @@ def test_narrow_both_egos_through_and_as_in_process(tmp_path: Path, domain_id: i
     # somebody yielded: the hold point went into a planner's observation
     assert sum(st["hold_steps"] for st in stats.values()) > 0, stats
     assert all(st["statuses_received"] > 0 for st in stats.values()), stats
+    # the command in force goes into each planner's prompt (and decision log) as text
+    commands = [json.loads(line).get("command")
+                for eid in EGOS
+                for line in (Path(s["run_dir"]) / eid / "decisions.jsonl").read_text()
+                .splitlines()]
+    assert any(c and ("yield at" in c or "proceed at" in c) for c in commands), commands[:5]
     if mode == "central":
         assert s["coordinator"]["directives_issued"] > 0
         assert all(st["directives_followed"] > 0 for st in stats.values()), stats

@@ -117,6 +117,12 @@ class CoordinationWiring:
     def after(self, decision: Optional[Decision], obs: Observation) -> Optional[Decision]:
         return self.link.shape(decision, obs)
 
+    def command_text(self, now_s: float) -> Optional[str]:
+        """The command in force for this ego in words (None: none), for an LLM planner's
+        prompt (``PlannerCore.on_command``), as in-process."""
+        cmd = self.link.ego.in_force(now_s)
+        return None if cmd is None else cmd.text()
+
     def counters(self) -> dict[str, Any]:
         return {f"coordination_{k}" if not k.startswith("directives") else k: v
                 for k, v in self.link.stats().items()}

@@ -110,7 +110,11 @@ class PlannerNode(DecisionNode):
         return self.coordination is None or self.coordination.ready(obs)
 
     def before_decide(self, obs: Observation) -> Observation:
-        return obs if self.coordination is None else self.coordination.before(obs)
+        if self.coordination is None:
+            return obs
+        acted = self.coordination.before(obs)
+        self.planner.on_command(self.coordination.command_text(obs.stamp_s))  # prompt text
+        return acted
 
     def after_decide(self, decision: Optional[Decision],
                      obs: Observation) -> Optional[Decision]:
