@@ -88,15 +88,10 @@ from lmpc_scripts.methods import (
 
 
 def _multi_module() -> Any:
-    """``scripts/multi.py`` next to this file (the installed ``lmpc_scripts`` may be
-    another checkout's)."""
-    import importlib.util
+    """``lmpc_scripts.multi``, imported when a multi-ego family is asked for."""
+    from lmpc_scripts import multi
 
-    spec = importlib.util.spec_from_file_location("lmpc_multi", Path(__file__).with_name(
-        "multi.py"))
-    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
-    spec.loader.exec_module(module)  # type: ignore[union-attr]
-    return module
+    return multi
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:

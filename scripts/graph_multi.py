@@ -17,11 +17,13 @@ from pathlib import Path
 from typing import Any, Optional
 
 MULTI_FAMILIES = ("narrow", "usi-multi", "merge")
-"""Families whose scenes carry several egos (``params["egos"]``; usi-multi and merge come
-with the branch that adds them, as in scripts/multi.py)."""
+"""Families whose scenes carry several egos (``params["egos"]``), as
+``lmpc_scripts.multi.MULTI_FAMILIES`` (not imported: it pulls in the methods registry,
+which the graph's start-up does not need; test_graph_multi checks they agree)."""
 COORDINATION = ("none", "distributed", "central")
 MULTI_PLANNERS = ("rules", "none")
-"""The planners of a multi-ego graph (the LLM backends take no directive yet)."""
+"""The planners of a multi-ego graph (LLM planners read the command as prompt text, but
+are not wired into multi-ego graphs yet: docs/MULTI.md, "What is left")."""
 
 
 def scene_egos(family: str, seed: int, work_dir: Path) -> int:

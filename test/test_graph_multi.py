@@ -234,3 +234,9 @@ def test_without_coordination_the_encounter_fails(tmp_path: Path, domain_id: int
     assert s["ego_collisions"] > 0 or s["deadlock"] is True, s
     assert "coordinator" not in s["nodes"]
     assert all(e["coordination"] is None for e in s["egos"].values())
+
+
+def test_the_graph_and_the_benchmark_know_the_same_multi_ego_families() -> None:
+    from lmpc_scripts import graph_multi, multi
+
+    assert set(graph_multi.MULTI_FAMILIES) == set(multi.MULTI_FAMILIES)

@@ -7,26 +7,15 @@ controllers do not see each other.
 """
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pytest
-from graphkit import REPO
 
 from lmpc_bridge.multi_sim import MultiSumoSim
 from lmpc_llm_planner.coordination.conflicts import JUNCTION_HOLD_MARGIN_M, route_starts_m
 from lmpc_llm_planner.coordination.ego import EgoCoordination
 from lmpc_msgs_py.vocabulary import load_decision_space
-
-
-def _multi():
-    spec = importlib.util.spec_from_file_location("lmpc_multi", REPO / "scripts" / "multi.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-multi = _multi()
+from lmpc_scripts import multi
 
 
 def _clean(result) -> None:

@@ -10,13 +10,11 @@ fall back to the distributed rule set.
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import json
 from pathlib import Path
 from typing import Any
 
 import pytest
-from graphkit import REPO
 
 from lmpc_llm_planner.backends.base import BackendError, BackendReply
 from lmpc_llm_planner.coordination import CoordinatorCore, make_coordinator_backend
@@ -30,16 +28,7 @@ from lmpc_llm_planner.coordination.llm import (
 )
 from lmpc_llm_planner.coordination.rules import resolve
 from lmpc_msgs_py.coordination import ConflictView, EgoStatus
-
-
-def _multi():
-    spec = importlib.util.spec_from_file_location("lmpc_multi", REPO / "scripts" / "multi.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-multi = _multi()
+from lmpc_scripts import multi
 
 
 def st(ego: str, via: str, entry_m: float, v: float = 5.0) -> EgoStatus:

@@ -6,7 +6,6 @@ coordinated modes must let both through there.
 """
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pytest
@@ -17,16 +16,7 @@ from lmpc_bridge.multi_sim import MultiSumoSim
 from lmpc_bridge.sim import SimError
 from lmpc_llm_planner.coordination import CoordinatorCore, RulesCoordinator, SilentCoordinator
 from lmpc_msgs_py.observation import Observation
-
-
-def _multi():
-    spec = importlib.util.spec_from_file_location("lmpc_multi", REPO / "scripts" / "multi.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-multi = _multi()
+from lmpc_scripts import multi
 
 
 def _clean(result) -> None:
