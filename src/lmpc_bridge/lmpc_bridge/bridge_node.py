@@ -21,13 +21,14 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, Optional
+from typing import Literal, Optional, TypeVar
 
 import rclpy
 from builtin_interfaces.msg import Time as TimeMsg
 from nav_msgs.msg import Odometry
 from pydantic import BaseModel, ConfigDict, Field
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
 from lmpc_bridge.scenarios import SceneError
@@ -49,18 +50,16 @@ from lmpc_msgs_py.observation import Observation
 from lmpc_msgs_py.profiling import percentiles
 
 
-class BridgeConfig(BaseModel):
-    """Parameters of the bridge node, mapped once from ROS parameters."""
+class BridgeTiming(BaseModel):
+    """Parameters every bridge node has (single- and multi-ego), mapped once from ROS
+    parameters."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    scenario: str = "usi"
     seed: int = Field(0, ge=0)
     clock_mode: Literal["sync", "realtime"] = "sync"
     wait_for_planner: bool = False
     """Sync mode: also wait for the planner's status of each step (set when a planner runs)."""
-    extra_subscribers: int = Field(0, ge=0)
-    """Sync mode: further subscribers of the ego state to wait for before step 0 (a recorder)."""
     control_timeout_s: float = Field(1.0, gt=0)
     """Sync mode: wall seconds to wait for a step's control before counting it late."""
     planner_timeout_s: float = Field(30.0, gt=0)
@@ -77,10 +76,31 @@ class BridgeConfig(BaseModel):
     """Sim seconds between progress log lines."""
     linger_s: float = Field(1.0, ge=0)
     """Wall seconds to keep serving after the episode ended (final status delivery)."""
+
+
+class BridgeConfig(BridgeTiming):
+    """Parameters of the (single-ego) bridge node."""
+
+    scenario: str = "usi"
+    extra_subscribers: int = Field(0, ge=0)
+    """Sync mode: further subscribers of the ego state to wait for before step 0 (a recorder)."""
     ego_id: str = ""
     scene_file: str = ""
     """A scene description (YAML, README "Your own network") instead of scenario / seed;
     its own max_time_s applies."""
+
+
+C = TypeVar("C", bound=BaseModel)
+
+
+def declare_config(node: Node, cls: type[C]) -> C:
+    """``cls`` from the node's ROS parameters, one declared per field (its default and
+    docstring as the parameter's default and description)."""
+    values = {}
+    for name, info in cls.model_fields.items():
+        desc = ParameterDescriptor(description=(info.description or name))
+        values[name] = node.declare_parameter(name, info.default, desc).value
+    return cls(**values)
 
 
 @dataclass
@@ -187,14 +207,8 @@ class BridgeNode(LmpcNode):
 
     # -- configuration -------------------------------------------------------------------
     def _read_config(self) -> BridgeConfig:
-        values = {}
-        for name, info in BridgeConfig.model_fields.items():
-            default = info.default
-            desc = ParameterDescriptor(description=(info.description or name))
-            values[name] = self.declare_parameter(name, default, desc).value
-        return BridgeConfig(**values)
+        return declare_config(self, BridgeConfig)
 
-    # -- inputs --------------------------------------------------------------------------
     def _on_control(self, msg: Control) -> None:
         if self.finished:
             return

@@ -36,17 +36,18 @@ from typing import Any, Literal, Optional
 
 import rclpy
 from nav_msgs.msg import Odometry
-from pydantic import BaseModel, ConfigDict, Field
-from rcl_interfaces.msg import ParameterDescriptor
+from pydantic import Field
 from rosgraph_msgs.msg import Clock
 
 from lmpc_bridge.bridge_node import (
     CONTROL_WAIT_STAGE,
     SCENE_ERROR_EXIT,
+    BridgeTiming,
     _percentiles,
     _RunStats,
     _stamp,
     _StepTiming,
+    declare_config,
 )
 from lmpc_bridge.multi_sim import MultiSumoSim
 from lmpc_bridge.scenarios import SceneError
@@ -66,26 +67,13 @@ from lmpc_msgs_py.messages import (
 )
 
 
-class MultiBridgeConfig(BaseModel):
-    """Parameters of the multi-ego bridge (as ``BridgeConfig``, plus ``egos``)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
+class MultiBridgeConfig(BridgeTiming):
+    """Parameters of the multi-ego bridge (``BridgeTiming`` plus these)."""
 
     scenario: str = "narrow"
-    seed: int = Field(0, ge=0)
     egos: int = Field(0, ge=0)
     """The number of egos the graph was started for (0: whatever the scene has); the
     bridge refuses a scene with another number."""
-    clock_mode: Literal["sync", "realtime"] = "sync"
-    wait_for_planner: bool = False
-    control_timeout_s: float = Field(1.0, gt=0)
-    planner_timeout_s: float = Field(30.0, gt=0)
-    control_stale_s: float = Field(0.3, gt=0)
-    startup_timeout_s: float = Field(0.0, ge=0)
-    max_time_s: float = Field(200.0, gt=0)
-    run_dir: str = ""
-    progress_period_s: float = Field(5.0, gt=0)
-    linger_s: float = Field(1.0, ge=0)
     coordination: Literal["none", "distributed", "central"] = "none"
     """With coordination, step 0 also waits until every planner and the coordinator are
     connected (their hold / directive publishers exist only then)."""
@@ -167,11 +155,7 @@ class MultiBridgeNode(LmpcNode):
         self.get_logger().info(f"egos {', '.join(self.egos)}; run folder {self.run_dir}")
 
     def _read_config(self) -> MultiBridgeConfig:
-        values = {}
-        for name, info in MultiBridgeConfig.model_fields.items():
-            desc = ParameterDescriptor(description=(info.description or name))
-            values[name] = self.declare_parameter(name, info.default, desc).value
-        return MultiBridgeConfig(**values)
+        return declare_config(self, MultiBridgeConfig)
 
     # -- inputs --------------------------------------------------------------------------
     def _on_control(self, ego: _Ego, msg: Control) -> None:
