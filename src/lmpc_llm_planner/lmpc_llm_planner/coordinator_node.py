@@ -8,8 +8,9 @@ the graph has sent one, except egos that reported and then fell silent for
 ``PEER_ACTIVE_S`` sim (through, or their planner died), once
 the core is due (every ``period_s`` of sim time), as the in-process coordinator does
 with the statuses of one step. Parameters: ``ego_ids`` (the graph's egos, comma-separated;
-a status from another ego is dropped and counted), ``backend`` (``rules``; the LLM
-backends are not implemented: ``make_coordinator_backend`` says so), ``period_s``,
+a status from another ego is dropped and counted), ``backend`` (``rules``, or ``openai`` /
+``local`` with the packaged planner settings and no call log; ``replay`` needs a log the
+node cannot be given yet, and ``run_graph.py`` always starts ``rules``), ``period_s``,
 ``ttl_s``. Diagnostics: rounds, directives issued / refused, statuses dropped.
 
 A coordinator that crashes or hangs sends nothing; the egos' planners notice the silence
