@@ -96,3 +96,31 @@ def test_a_planner_of_another_decision_space_is_refused_by_the_mpc(
     ep = read_episode(run_dir)
     assert ep["record"]["steps"], "the episode did not run"
     assert logs_with_tracebacks(run_dir) == {}
+
+
+@pytest.mark.graph
+def test_a_decision_published_before_the_mpc_matched_still_reaches_it(
+    tmp_path: Path, domain_id: int
+) -> None:
+    """The planner and the MPC discover each other on their own; a decision the planner
+    sent before its writer had matched the MPC's reader must still arrive (CI lost the
+    first decision of an episode so, 2026-12-03). Here the decision is published before
+    the MPC process even starts; the MPC must receive it (seen through its refusal: the
+    decision names another space, which the MPC logs by id)."""
+    from lmpc_msgs_py import qos as lmpc_qos
+    from lmpc_msgs_py.codec import encode
+    from lmpc_msgs_py.messages import BezierTrajectory, Decision
+
+    cps = ((10.0, -4.8), (30.0, -4.8), (50.0, -4.8), (70.0, -4.8))
+    decision = Decision(stamp_s=0.0, seq=1, decision_id="before-the-match", source="mock",
+                        latency_s=0.0, ego_trajectory=BezierTrajectory(
+                            candidate_id=0, control_points=cps),
+                        accel_interval=0, steer_interval=2, space_hash="0" * 16)
+    with NodeSet(tmp_path / "run", domain_id) as g, Probe(domain_id) as probe:
+        # the planner's writer QoS (lmpc_qos.PRODUCED), published with no reader around
+        probe.publish("/lmpc/decision", encode(decision),
+                      lmpc_qos.PRODUCED)
+        g.start("mpc", {"use_sim_time": True, "clock_mode": "sync"})
+        g.wait_for_log("mpc", "REFUSED decision before-the-match", 30)
+        g.stop_all()
+    assert logs_with_tracebacks(tmp_path / "run") == {}

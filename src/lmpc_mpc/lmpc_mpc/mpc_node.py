@@ -92,7 +92,8 @@ class MpcNode(LmpcNode):
         self.json_subscription(EgoState, topics.EGO_STATE, self._on_ego)
         self.json_subscription(AgentArray, topics.AGENTS, self._on_agents)
         self.json_subscription(SignalStates, topics.SIGNALS, self._on_signals)
-        self.json_subscription(Decision, topics.DECISION, self._on_decision)
+        self.json_subscription(Decision, topics.DECISION, self._on_decision,
+                               lmpc_qos.DECISION_IN)
         self._holds: dict[float, AgentArray] = {}
         if self.ego_id:  # a multi-ego graph: the coordination's hold point (issue 18)
             self.json_subscription(AgentArray, topics.COORD_HOLD, self._on_hold)

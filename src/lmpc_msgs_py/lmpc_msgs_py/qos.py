@@ -34,6 +34,22 @@ PRODUCED = QoSProfile(
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
 
+# The MPC's subscription to decisions: like STREAM, but transient local, so a decision the
+# planner published before the two processes had matched still arrives when they match.
+# With a volatile reader it was lost: the planner and the MPC discover each other on their
+# own, after the bridge has seen both, and under load the planner's first decision (made
+# on step 0) went out before its writer knew the MPC's reader; the MPC's sync barrier
+# gave up after 1 s and drove without a decision until the next one 2.5 s later (CI,
+# test_graph_instruction: the aggressive driver took the exit lane at 0.6 s). A
+# restarted MPC now gets the planner's last decisions too; the timing rule and the TTL
+# decide whether one is still in force, as for any decision.
+DECISION_IN = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
 # The map is latched: late joiners get the last snapshot.
 LATCHED = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
