@@ -142,17 +142,129 @@ def _stamp(t_s: float) -> TimeMsg:
     return TimeMsg(sec=sec, nanosec=int(round((t_s - sec) * 1e9)) % 1_000_000_000)
 
 
-class BridgeNode(LmpcNode):
-    def __init__(self) -> None:
+def odometry(state: EgoState, child_frame_id: str) -> Odometry:
+    """The ego's pose and speed as ``nav_msgs/Odometry`` in the map frame (RViz)."""
+    odom = Odometry()
+    odom.header.stamp = _stamp(state.stamp_s)
+    odom.header.frame_id = "map"
+    odom.child_frame_id = child_frame_id
+    odom.pose.pose.position.x = state.x_m
+    odom.pose.pose.position.y = state.y_m
+    odom.pose.pose.orientation.z = math.sin(state.yaw_rad / 2.0)
+    odom.pose.pose.orientation.w = math.cos(state.yaw_rad / 2.0)
+    odom.twist.twist.linear.x = state.v_mps
+    return odom
+
+
+def control_for_step(ctl: Optional[Control], sim_time_s: float, cfg: BridgeTiming
+                     ) -> Optional[Control]:
+    """The control to apply at ``sim_time_s``: sync, the one stamped with this step;
+    realtime, the newest one not older than ``control_stale_s``; None: brake."""
+    if ctl is None:
+        return None
+    if cfg.clock_mode == "sync":
+        return ctl if abs(ctl.stamp_s - sim_time_s) < 1e-6 else None
+    stale = sim_time_s - ctl.stamp_s > cfg.control_stale_s + 1e-9
+    return None if stale else ctl
+
+
+class BridgeBase(LmpcNode):
+    """What the single- and the multi-ego bridge share: the configuration and the run
+    folder, the start-up (step 0 once every participant is connected; realtime: or after
+    ``startup_timeout_s``), the step-cycle bookkeeping and the linger after the end.
+    Subclasses build the simulation and define ``_ready_to_start``, ``_publish_step``,
+    ``_sync_watchdog``, ``_realtime_tick`` and ``_diagnostics``."""
+
+    def __init__(self, config_cls: type[BridgeTiming]) -> None:
         super().__init__("sumo_bridge")
-        self.cfg = self._read_config()
-        if self.cfg.ego_id:
-            self.ego_id = self.cfg.ego_id
+        self.cfg = declare_config(self, config_cls)
         self.exit_code = 0
         run_dir = Path(self.cfg.run_dir) if self.cfg.run_dir else Path(tempfile.mkdtemp("-lmpc"))
         run_dir.mkdir(parents=True, exist_ok=True)
         self.run_dir = run_dir
+        self.started = False
+        self.finished = False
+        self.next_progress_s = 0.0
+        self.waiting_since = time.monotonic()
+        self.finished_wall_s = 0.0
+        self.step0_epoch_s: Optional[float] = None
+        self.last_publish_wall_s: Optional[float] = None
 
+    def _start_timers(self, dt_s: float) -> None:
+        if self.cfg.clock_mode == "sync":
+            self.create_timer(0.02, self._sync_watchdog)
+        else:
+            self.create_timer(dt_s, self._realtime_tick)
+        self.create_timer(1.0, self._diagnostics)
+
+    def _ready_to_start(self) -> Optional[str]:
+        """None when every participant is connected, else what we wait for."""
+        raise NotImplementedError
+
+    def _publish_step(self) -> None:
+        raise NotImplementedError
+
+    def _sync_watchdog(self) -> None:
+        raise NotImplementedError
+
+    def _realtime_tick(self) -> None:
+        raise NotImplementedError
+
+    def _diagnostics(self) -> None:
+        raise NotImplementedError
+
+    def _ended(self) -> bool:
+        """True once the episode has ended (the caller then does nothing else); shuts
+        rclpy down ``linger_s`` after the end (the final status has been delivered)."""
+        if not self.finished:
+            return False
+        if time.monotonic() - self.finished_wall_s >= self.cfg.linger_s:
+            rclpy.try_shutdown()
+        return True
+
+    def _starting(self) -> bool:
+        """True before and at step 0 (the caller then does nothing else): waits for the
+        participants (realtime: at most ``startup_timeout_s``), then publishes step 0."""
+        if self.started:
+            return False
+        missing = self._ready_to_start()
+        waited = time.monotonic() - self.waiting_since
+        realtime = self.cfg.clock_mode == "realtime"
+        if missing is not None and (not realtime or waited < self.cfg.startup_timeout_s):
+            if waited > 2.0:
+                self.log_event("startup", f"waiting for {missing}", level="info")
+            return True
+        if missing is None:
+            self.get_logger().info("all participants connected: starting the episode")
+        elif self.cfg.startup_timeout_s > 0.0:
+            self.get_logger().warn(f"starting without {missing} after "
+                                   f"{self.cfg.startup_timeout_s:.0f} s wall")
+        self.started = True
+        self._publish_step()
+        return True
+
+    def _step_published(self) -> None:
+        """Book-keeping of a step's publication: the step cycle, the wall time of step 0."""
+        now = time.monotonic()
+        if self.last_publish_wall_s is not None:
+            self.stage_times.add("step cycle (publish to publish)",
+                                 (now - self.last_publish_wall_s) * 1e3)
+        else:
+            self.step0_epoch_s = time.time()
+        self.last_publish_wall_s = now
+
+    def _mark_finished(self) -> None:
+        self.finished = True
+        self.finished_wall_s = time.monotonic()
+
+
+class BridgeNode(BridgeBase):
+    def __init__(self) -> None:
+        super().__init__(BridgeConfig)
+        self.cfg: BridgeConfig
+        if self.cfg.ego_id:
+            self.ego_id = self.cfg.ego_id
+        run_dir = self.run_dir
         self.sim = SumoSim(work_dir=run_dir / "scene")
         if self.cfg.scene_file:
             # imported here: it pulls in sumolib / traci, ~0.1 s of every other start-up
@@ -189,25 +301,10 @@ class BridgeNode(LmpcNode):
         self.latest_control: Optional[Control] = None
         self.planner_stamp_s = -1.0
         self.required_decision_id: Optional[str] = None
-        self.started = False
-        self.finished = False
-        self.next_progress_s = 0.0
-        self.waiting_since = time.monotonic()
-        self.finished_wall_s = 0.0
-        self.step0_epoch_s: Optional[float] = None
-        self.last_publish_wall_s: Optional[float] = None
 
         self.pub_map.publish(self.sim.map)
-        if self.cfg.clock_mode == "sync":
-            self.create_timer(0.02, self._sync_watchdog)
-        else:
-            self.create_timer(self.sim.dt_s, self._realtime_tick)
-        self.create_timer(1.0, self._diagnostics)
+        self._start_timers(self.sim.dt_s)
         self.get_logger().info(f"run folder {self.run_dir}")
-
-    # -- configuration -------------------------------------------------------------------
-    def _read_config(self) -> BridgeConfig:
-        return declare_config(self, BridgeConfig)
 
     def _on_control(self, msg: Control) -> None:
         if self.finished:
@@ -256,13 +353,8 @@ class BridgeNode(LmpcNode):
             obs: Observation = self.sim.observe(required_decision_id=required)
         t = obs.stamp_s
         self.pub_clock.publish(Clock(clock=_stamp(t)))
-        now = time.monotonic()
-        if self.last_publish_wall_s is not None:
-            times.add("step cycle (publish to publish)", (now - self.last_publish_wall_s) * 1e3)
-        else:
-            self.step0_epoch_s = time.time()
-        self.last_publish_wall_s = now
-        self.timing[obs.ego.seq] = _StepTiming(published_wall_s=now)
+        self._step_published()
+        self.timing[obs.ego.seq] = _StepTiming(published_wall_s=self.last_publish_wall_s)
         self.pub_ego.publish(obs.ego)
         self.pub_agents.publish(obs.agents)
         self.pub_signals.publish(obs.signals)
@@ -279,25 +371,10 @@ class BridgeNode(LmpcNode):
             self.pub_episode.publish(self.sim.status())
 
     def _publish_odom(self, ego: EgoState) -> None:
-        odom = Odometry()
-        odom.header.stamp = _stamp(ego.stamp_s)
-        odom.header.frame_id = "map"
-        odom.child_frame_id = "ego"
-        odom.pose.pose.position.x = ego.x_m
-        odom.pose.pose.position.y = ego.y_m
-        odom.pose.pose.orientation.z = math.sin(ego.yaw_rad / 2.0)
-        odom.pose.pose.orientation.w = math.cos(ego.yaw_rad / 2.0)
-        odom.twist.twist.linear.x = ego.v_mps
-        self.pub_odom.publish(odom)
+        self.pub_odom.publish(odometry(ego, "ego"))
 
     def _control_for_current_step(self) -> Optional[Control]:
-        ctl = self.latest_control
-        if ctl is None:
-            return None
-        if self.cfg.clock_mode == "sync":
-            return ctl if abs(ctl.stamp_s - self.sim.time_s) < 1e-6 else None
-        stale = self.sim.time_s - ctl.stamp_s > self.cfg.control_stale_s + 1e-9
-        return None if stale else ctl
+        return control_for_step(self.latest_control, self.sim.time_s, self.cfg)
 
     def _advance(self, control: Optional[Control]) -> None:
         k = self.sim.step_index
@@ -353,22 +430,9 @@ class BridgeNode(LmpcNode):
         self._advance(self._control_for_current_step())
 
     def _sync_watchdog(self) -> None:
-        now = time.monotonic()
-        if self.finished:
-            if now - self.finished_wall_s >= self.cfg.linger_s:
-                rclpy.try_shutdown()
+        if self._ended() or self._starting():
             return
-        if not self.started:
-            missing = self._ready_to_start()
-            if missing is not None:
-                if now - self.waiting_since > 2.0:
-                    self.log_event("startup", f"waiting for {missing}", level="info")
-                return
-            self.started = True
-            self.get_logger().info("all participants connected: starting the episode")
-            self._publish_step()
-            return
-        waited = now - self.waiting_since
+        waited = time.monotonic() - self.waiting_since
         have_control = self._control_for_current_step() is not None
         if have_control:
             if self._planner_done():  # it may have left the graph meanwhile
@@ -389,33 +453,16 @@ class BridgeNode(LmpcNode):
             self._advance(None)
 
     def _realtime_tick(self) -> None:
-        if self.finished:
-            if time.monotonic() - self.finished_wall_s >= self.cfg.linger_s:
-                rclpy.try_shutdown()
-            return
-        if not self.started:
-            # Wait for the participants as in sync mode (bounded by startup_timeout_s):
-            # otherwise the ego brakes from its initial speed while the MPC warms up.
-            missing = self._ready_to_start()
-            waited = time.monotonic() - self.waiting_since
-            if missing is not None and waited < self.cfg.startup_timeout_s:
-                if waited > 2.0:
-                    self.log_event("startup", f"waiting for {missing}", level="info")
-                return
-            if missing is None:
-                self.get_logger().info("all participants connected: starting the episode")
-            elif self.cfg.startup_timeout_s > 0.0:
-                self.get_logger().warn(f"starting without {missing} after "
-                                       f"{self.cfg.startup_timeout_s:.0f} s wall")
-            self.started = True
-            self._publish_step()
+        # before step 0 the participants are waited for as in sync mode (bounded by
+        # startup_timeout_s): otherwise the ego brakes from its initial speed while the
+        # MPC warms up
+        if self._ended() or self._starting():
             return
         self._advance(self._control_for_current_step())
 
     # -- end of episode ------------------------------------------------------------------
     def _finish(self, status: EpisodeStatus) -> None:
-        self.finished = True
-        self.finished_wall_s = time.monotonic()
+        self._mark_finished()
         self.pub_episode.publish(status)
         self.get_logger().info(
             f"episode ended: {status.outcome} at t={status.stamp_s:.1f}s {status.detail}".rstrip()

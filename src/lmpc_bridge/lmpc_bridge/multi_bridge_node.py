@@ -26,15 +26,11 @@ from __future__ import annotations
 
 import functools
 import json
-import math
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Literal, Optional
 
-import rclpy
 from nav_msgs.msg import Odometry
 from pydantic import Field
 from rosgraph_msgs.msg import Clock
@@ -42,19 +38,21 @@ from rosgraph_msgs.msg import Clock
 from lmpc_bridge.bridge_node import (
     CONTROL_WAIT_STAGE,
     SCENE_ERROR_EXIT,
+    BridgeBase,
     BridgeTiming,
     _percentiles,
     _RunStats,
     _stamp,
     _StepTiming,
-    declare_config,
+    control_for_step,
+    odometry,
 )
 from lmpc_bridge.multi_sim import MultiSumoSim
 from lmpc_bridge.scenarios import SceneError
 from lmpc_bridge.sim import SimError
 from lmpc_msgs_py import qos as lmpc_qos
 from lmpc_msgs_py import topics
-from lmpc_msgs_py.base_node import JsonPublisher, LmpcNode, run_node
+from lmpc_msgs_py.base_node import JsonPublisher, run_node
 from lmpc_msgs_py.messages import (
     AgentArray,
     Control,
@@ -102,17 +100,13 @@ def _wait_stage(eid: str) -> str:
     return f"{CONTROL_WAIT_STAGE} {eid}"
 
 
-class MultiBridgeNode(LmpcNode):
+class MultiBridgeNode(BridgeBase):
     def __init__(self) -> None:
-        super().__init__("sumo_bridge")
-        self.cfg = self._read_config()
-        self.exit_code = 0
-        run_dir = Path(self.cfg.run_dir) if self.cfg.run_dir else Path(tempfile.mkdtemp("-lmpc"))
-        run_dir.mkdir(parents=True, exist_ok=True)
-        self.run_dir = run_dir
+        super().__init__(MultiBridgeConfig)
+        self.cfg: MultiBridgeConfig
         self.get_logger().info(f"building scene {self.cfg.scenario} seed {self.cfg.seed} "
                                f"({self.cfg.clock_mode} clock, several egos)")
-        self.sim = MultiSumoSim(work_dir=run_dir / "scene")
+        self.sim = MultiSumoSim(work_dir=self.run_dir / "scene")
         self.sim.reset(self.cfg.scenario, self.cfg.seed, max_time_s=self.cfg.max_time_s)
         if self.cfg.egos and self.cfg.egos != len(self.sim.egos):
             n = len(self.sim.egos)
@@ -140,22 +134,8 @@ class MultiBridgeNode(LmpcNode):
             self.json_subscription(PlannerStatus, topics.PLANNER_STATUS,
                                    functools.partial(self._on_planner_status, ego), ego=eid)
             ego.pub_map.publish(self.sim.egos[eid].map)
-        self.started = False
-        self.finished = False
-        self.next_progress_s = 0.0
-        self.waiting_since = time.monotonic()
-        self.finished_wall_s = 0.0
-        self.step0_epoch_s: Optional[float] = None
-        self.last_publish_wall_s: Optional[float] = None
-        if self.cfg.clock_mode == "sync":
-            self.create_timer(0.02, self._sync_watchdog)
-        else:
-            self.create_timer(self.sim.dt_s, self._realtime_tick)
-        self.create_timer(1.0, self._diagnostics)
+        self._start_timers(self.sim.dt_s)
         self.get_logger().info(f"egos {', '.join(self.egos)}; run folder {self.run_dir}")
-
-    def _read_config(self) -> MultiBridgeConfig:
-        return declare_config(self, MultiBridgeConfig)
 
     # -- inputs --------------------------------------------------------------------------
     def _on_control(self, ego: _Ego, msg: Control) -> None:
@@ -185,13 +165,7 @@ class MultiBridgeNode(LmpcNode):
         return [self.egos[eid] for eid in self.sim.running_ids()]
 
     def _control(self, ego: _Ego) -> Optional[Control]:
-        ctl = ego.latest_control
-        if ctl is None:
-            return None
-        if self.cfg.clock_mode == "sync":
-            return ctl if abs(ctl.stamp_s - self.sim.time_s) < 1e-6 else None
-        stale = self.sim.time_s - ctl.stamp_s > self.cfg.control_stale_s + 1e-9
-        return None if stale else ctl
+        return control_for_step(ego.latest_control, self.sim.time_s, self.cfg)
 
     def _planner_done(self, ego: _Ego) -> bool:
         return not self.cfg.wait_for_planner or ego.planner_stamp_s >= self.sim.time_s - 1e-6
@@ -229,13 +203,7 @@ class MultiBridgeNode(LmpcNode):
     def _publish_step(self) -> None:
         t = self.sim.time_s
         self.pub_clock.publish(Clock(clock=_stamp(t)))
-        now = time.monotonic()
-        if self.last_publish_wall_s is not None:
-            self.stage_times.add("step cycle (publish to publish)",
-                                 (now - self.last_publish_wall_s) * 1e3)
-        else:
-            self.step0_epoch_s = time.time()
-        self.last_publish_wall_s = now
+        self._step_published()
         sync = self.cfg.clock_mode == "sync"
         for ego in self._running():
             with self.stage_times.stage("observe"):
@@ -245,7 +213,7 @@ class MultiBridgeNode(LmpcNode):
             ego.pub_ego.publish(obs.ego)
             ego.pub_agents.publish(obs.agents)
             ego.pub_signals.publish(obs.signals)
-            self._publish_odom(ego, obs.ego)
+            ego.pub_odom.publish(odometry(obs.ego, ego.eid))  # type: ignore[attr-defined]
         self.waiting_since = time.monotonic()
         if t >= self.next_progress_s:
             self.next_progress_s = t + self.cfg.progress_period_s
@@ -253,18 +221,6 @@ class MultiBridgeNode(LmpcNode):
                      f"dist={self.sim.egos[e.eid].dist_to_target_m:.1f}m"
                      for e in self._running()]
             self.get_logger().info(f"progress t={t:.1f}s " + "; ".join(parts))
-
-    def _publish_odom(self, ego: _Ego, state: EgoState) -> None:
-        odom = Odometry()
-        odom.header.stamp = _stamp(state.stamp_s)
-        odom.header.frame_id = "map"
-        odom.child_frame_id = ego.eid
-        odom.pose.pose.position.x = state.x_m
-        odom.pose.pose.position.y = state.y_m
-        odom.pose.pose.orientation.z = math.sin(state.yaw_rad / 2.0)
-        odom.pose.pose.orientation.w = math.cos(state.yaw_rad / 2.0)
-        odom.twist.twist.linear.x = state.v_mps
-        ego.pub_odom.publish(odom)  # type: ignore[attr-defined]
 
     def _advance(self, controls: dict[str, Optional[Control]]) -> None:
         k = int(round(self.sim.time_s / self.sim.dt_s))
@@ -307,22 +263,9 @@ class MultiBridgeNode(LmpcNode):
             self._advance({e.eid: self._control(e) for e in running})
 
     def _sync_watchdog(self) -> None:
-        now = time.monotonic()
-        if self.finished:
-            if now - self.finished_wall_s >= self.cfg.linger_s:
-                rclpy.try_shutdown()
+        if self._ended() or self._starting():
             return
-        if not self.started:
-            missing = self._ready_to_start()
-            if missing is not None:
-                if now - self.waiting_since > 2.0:
-                    self.log_event("startup", f"waiting for {missing}", level="info")
-                return
-            self.started = True
-            self.get_logger().info("all participants connected: starting the episode")
-            self._publish_step()
-            return
-        waited = now - self.waiting_since
+        waited = time.monotonic() - self.waiting_since
         first = self.sim.time_s <= 1e-9
         running = self._running()
         no_control = [e for e in running if self._control(e) is None
@@ -343,24 +286,13 @@ class MultiBridgeNode(LmpcNode):
             self._advance({e.eid: self._control(e) for e in running})
 
     def _realtime_tick(self) -> None:
-        if self.finished:
-            if time.monotonic() - self.finished_wall_s >= self.cfg.linger_s:
-                rclpy.try_shutdown()
-            return
-        if not self.started:
-            missing = self._ready_to_start()
-            waited = time.monotonic() - self.waiting_since
-            if missing is not None and waited < self.cfg.startup_timeout_s:
-                return
-            self.started = True
-            self._publish_step()
+        if self._ended() or self._starting():
             return
         self._advance({e.eid: self._control(e) for e in self._running()})
 
     # -- end of episode ------------------------------------------------------------------
     def _finish(self) -> None:
-        self.finished = True
-        self.finished_wall_s = time.monotonic()
+        self._mark_finished()
         self._write_episode()
 
     def _write_episode(self) -> None:
