@@ -119,7 +119,8 @@ class FaultRelay(Node):
         self._held: dict[str, Optional[str]] = {}
         self._pubs = {}
         for src, dst in links:
-            pub = self.create_publisher(String, dst, lmpc_qos.STREAM)
+            # as the nodes publish: the MPC reads decisions transient local (DECISION_IN)
+            pub = self.create_publisher(String, dst, lmpc_qos.PRODUCED)
             self._pubs[src] = pub
             self._held[src] = None
             self.create_subscription(

@@ -351,8 +351,10 @@ class Probe:
 
         pub = self._pubs.get(topic)
         if pub is None:
+            # as the nodes publish (transient local, compatible with every reader: the
+            # MPC reads decisions transient local, lmpc_qos.DECISION_IN)
             pub = self._pubs[topic] = self.node.create_publisher(
-                String, topic, qos or lmpc_qos.STREAM)
+                String, topic, qos or lmpc_qos.PRODUCED)
         pub.publish(String(data=text))
 
     def wait_subscribers(self, topic: str, count: int, timeout_s: float) -> None:

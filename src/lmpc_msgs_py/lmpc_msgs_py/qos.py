@@ -42,7 +42,10 @@ PRODUCED = QoSProfile(
 # gave up after 1 s and drove without a decision until the next one 2.5 s later (CI,
 # test_graph_instruction: the aggressive driver took the exit lane at 0.6 s). A
 # restarted MPC now gets the planner's last decisions too; the timing rule and the TTL
-# decide whether one is still in force, as for any decision.
+# decide whether one is still in force, as for any decision. The cost: a VOLATILE publisher
+# of decisions does not match this reader (DDS: incompatible durability; rclpy warns on
+# both sides). Publish decisions with PRODUCED, as every node of the graph does (and
+# `ros2 topic pub --qos-durability transient_local` by hand).
 DECISION_IN = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=10,
