@@ -119,7 +119,7 @@ def _replay_flags(args: argparse.Namespace, run_dir: Path) -> Optional[str]:
     for eid in ego_ids(args.egos):
         log = args.planner_replay / eid / "decisions.jsonl"
         if not log.is_file():
-            return f"--planner-replay: {log} does not exist (ego {eid} has no decision log)"
+            return f"--planner-replay: {log} does not exist (the decision log of {eid})"
     return None
 
 
