@@ -4,10 +4,17 @@ One bridge (``lmpc_bridge.multi_bridge_node``) drives ``ego_1 … ego_N``; each 
 MPC and (unless ``--planner none``) one planner process, started in the ROS namespace
 ``/<ego_id>`` with ``ego_id`` set, so their node names are ``/<ego_id>/mpc_controller``,
 ``/<ego_id>/llm_planner`` and their topics ``/<ego_id>/lmpc/...``. With ``--coordination
-central`` a ``coordinator`` process (``lmpc_llm_planner.coordinator_node``, rules backend)
-joins; with ``distributed`` the planners resolve among themselves. The coordinator is
-the one process allowed to end early: the egos fall back (``coordination/link.py``) and
-the run goes on (the summary says when it ended).
+central`` a ``coordinator`` process (``lmpc_llm_planner.coordinator_node``, backend
+``--coordinator-backend``) joins; with ``distributed`` the planners resolve among
+themselves. The coordinator is the one process allowed to end early: the egos fall back
+(``coordination/link.py``) and the run goes on (the summary says when it ended).
+
+Planners: ``rules``, ``none`` and the LLM backends ``openai`` / ``local`` / ``replay``
+(each ego's planner reads its command in force as prompt text; its decision log is
+``<run_dir>/<ego_id>/decisions.jsonl``). ``--planner replay --planner-replay DIR``: each
+ego replays ``DIR/<ego_id>/decisions.jsonl`` of a finished multi-ego run. The LLM
+coordinator's calls go to ``<run_dir>/coordinator.jsonl``; ``--coordinator-backend replay
+--coordinator-replay FILE`` answers from such a log.
 """
 from __future__ import annotations
 
@@ -21,9 +28,38 @@ MULTI_FAMILIES = ("narrow", "usi-multi", "merge")
 ``lmpc_scripts.multi.MULTI_FAMILIES`` (not imported: it pulls in the methods registry,
 which the graph's start-up does not need; test_graph_multi checks they agree)."""
 COORDINATION = ("none", "distributed", "central")
-MULTI_PLANNERS = ("rules", "none")
-"""The planners of a multi-ego graph (LLM planners read the command as prompt text, but
-are not wired into multi-ego graphs yet: docs/MULTI.md, "What is left")."""
+MULTI_PLANNERS = ("rules", "openai", "local", "replay", "none")
+"""The planners of a multi-ego graph (``mock``, the scripted mock LLM node, has no
+coordination: refused)."""
+COORDINATOR_BACKENDS = ("rules", "openai", "local", "replay")
+LLM_PLANNERS = ("openai", "local", "replay")
+
+
+def add_args(ap: argparse.ArgumentParser) -> None:
+    """run_graph's options of a multi-ego graph."""
+    ap.add_argument("--egos", type=int, metavar="N",
+                    help="controlled vehicles ego_1..ego_N, one MPC and one planner process "
+                         "each under /ego_k/lmpc/... (default: the family's; 1 = today's "
+                         "single-ego graph under /lmpc/...; docs/MULTI.md)")
+    ap.add_argument("--coordination", choices=COORDINATION, default="none",
+                    help="several egos: none (independent), distributed (the planners "
+                         "resolve shared conflicts by a fixed rule set), central (a "
+                         "coordinator node sends directives)")
+    ap.add_argument("--planner-replay", type=Path, metavar="DIR",
+                    help="several egos, --planner replay: the finished multi-ego run folder "
+                         "whose DIR/ego_k/decisions.jsonl ego_k replays")
+    ap.add_argument("--coordinator-backend", choices=COORDINATOR_BACKENDS, default="rules",
+                    help="--coordination central: rules (the fixed rule set), openai / local "
+                         "(an LLM; endpoint and model as the planner's: the openai / local "
+                         "section of --coordinator-config and LMPC_OPENAI_BASE_URL / "
+                         "LMPC_OPENAI_MODEL / LMPC_OPENAI_API_KEY; its calls logged to "
+                         "<run-dir>/coordinator.jsonl), replay (--coordinator-replay)")
+    ap.add_argument("--coordinator-config", type=Path, metavar="YAML",
+                    help="planner YAML whose openai / local settings the LLM coordinator "
+                         "uses (default: --planner-config, else the packaged one; local: "
+                         "planner_local.yaml)")
+    ap.add_argument("--coordinator-replay", type=Path, metavar="LOG",
+                    help="--coordinator-backend replay: a coordinator.jsonl of an earlier run")
 
 
 def scene_egos(family: str, seed: int, work_dir: Path) -> int:
@@ -43,7 +79,7 @@ def check_args(args: argparse.Namespace, work_dir: Path) -> Optional[str]:
         if (args.egos or 1) != 1 or args.coordination != "none":
             return "--egos / --coordination need a multi-ego family (--scenario), not --scene"
         args.egos = 1
-        return None
+        return _single_ego_flags(args)
     try:
         n = scene_egos(args.scenario, args.seed, work_dir)
     except Exception as exc:  # noqa: BLE001 - a scene that cannot be built: one line
@@ -56,17 +92,66 @@ def check_args(args: argparse.Namespace, work_dir: Path) -> Optional[str]:
     if args.egos == 1:
         if args.coordination != "none":
             return f"--coordination {args.coordination} needs several egos (--egos {n})"
-        return None
+        return _single_ego_flags(args)
     if args.planner not in MULTI_PLANNERS:
         return (f"--planner {args.planner}: a multi-ego graph runs the planners "
-                f"{', '.join(MULTI_PLANNERS)}")
+                f"{', '.join(MULTI_PLANNERS)} (the mock LLM node has no coordination; "
+                "--planner openai against a test server instead)")
     if args.coordination != "none" and args.planner == "none":
         return f"--coordination {args.coordination} needs a planner (--planner rules)"
     for flag, value in (("--record", args.record), ("--instruction", args.instruction),
-                        ("--scene", args.scene), ("--extra-subscribers",
-                                                  args.extra_subscribers)):
+                        ("--extra-subscribers", args.extra_subscribers)):
         if value:
             return f"{flag} is not supported with several egos yet"
+    return _replay_flags(args, work_dir.parent) or _coordinator_flags(args)
+
+
+def _replay_flags(args: argparse.Namespace, run_dir: Path) -> Optional[str]:
+    if args.planner_replay is not None and args.planner != "replay":
+        return "--planner-replay needs --planner replay"
+    if args.planner != "replay":
+        return None
+    if args.planner_replay is None:
+        return ("--planner replay with several egos needs --planner-replay DIR (a finished "
+                "multi-ego run folder with DIR/ego_k/decisions.jsonl)")
+    if args.planner_replay.resolve() == run_dir.resolve():
+        return "--planner-replay must be another run folder than --run-dir (its logs are read)"
+    for eid in ego_ids(args.egos):
+        log = args.planner_replay / eid / "decisions.jsonl"
+        if not log.is_file():
+            return f"--planner-replay: {log} does not exist (the decision log of {eid})"
+    return None
+
+
+def _coordinator_flags(args: argparse.Namespace) -> Optional[str]:
+    backend = args.coordinator_backend
+    if backend != "rules" and args.coordination != "central":
+        return (f"--coordinator-backend {backend} needs --coordination central (only "
+                "central runs a coordinator)")
+    if args.coordinator_replay is not None and backend != "replay":
+        return "--coordinator-replay needs --coordinator-backend replay"
+    if args.coordinator_config is not None and backend not in ("openai", "local"):
+        return "--coordinator-config needs --coordinator-backend openai or local"
+    if backend == "replay" and (args.coordinator_replay is None
+                                or not args.coordinator_replay.is_file()):
+        return ("--coordinator-backend replay needs --coordinator-replay LOG, an existing "
+                f"coordinator.jsonl (got {args.coordinator_replay})")
+    return None
+
+
+def _single_ego_flags(args: argparse.Namespace) -> Optional[str]:
+    """A multi-ego option given to a single-ego run: why not (None: none given)."""
+    for flag, given, needs in (
+            ("--planner-replay", args.planner_replay is not None,
+             "several egos (one ego: --planner-config names its replay log)"),
+            ("--coordinator-backend", args.coordinator_backend != "rules",
+             "several egos and --coordination central"),
+            ("--coordinator-config", args.coordinator_config is not None,
+             "several egos and --coordination central"),
+            ("--coordinator-replay", args.coordinator_replay is not None,
+             "several egos and --coordination central")):
+        if given:
+            return f"{flag} needs {needs}"
     return None
 
 
@@ -82,10 +167,8 @@ def node_specs(args: argparse.Namespace, run_dir: Path
     with_planner = args.planner != "none"
     specs: list[tuple[str, str, dict[str, object], Optional[str]]] = []
     if args.coordination == "central":
-        specs.append(("coordinator", "lmpc_llm_planner.coordinator_node", {
-            "use_sim_time": True, "ego_ids": ",".join(ids), "backend": "rules",
-            "profile_file": str(run_dir / "profile_coordinator.json"),
-            "stats_file": str(run_dir / "coordinator.json")}, None))
+        specs.append(("coordinator", "lmpc_llm_planner.coordinator_node",
+                      coordinator_params(args, run_dir, ids), None))
     for eid in ids:
         mpc: dict[str, object] = {"use_sim_time": True, "clock_mode": args.clock,
                                   "ego_id": eid,
@@ -100,8 +183,9 @@ def node_specs(args: argparse.Namespace, run_dir: Path
                 "use_sim_time": True, "backend": args.planner, "run_dir": str(ego_dir),
                 "ego_id": eid, "ego_ids": ",".join(ids), "coordination": args.coordination,
                 "profile_file": str(run_dir / f"profile_planner_{eid}.json")}
-            if args.planner_config:
-                planner["config_file"] = str(args.planner_config.resolve())
+            config = ego_planner_config(args, eid, ego_dir)
+            if config is not None:
+                planner["config_file"] = str(config)
             if args.decision_space is not None:
                 planner["decision_space_file"] = str(args.decision_space.resolve())
             for name in ("decision_latency", "emergency_latency"):
@@ -112,8 +196,63 @@ def node_specs(args: argparse.Namespace, run_dir: Path
         "scenario": args.scenario, "seed": args.seed, "egos": args.egos,
         "clock_mode": args.clock, "wait_for_planner": with_planner and args.clock == "sync",
         "max_time_s": args.max_time_s, "run_dir": str(run_dir),
+        # an LLM call may take its whole deadline (local model: tens of seconds)
+        "planner_timeout_s": 180.0 if args.planner in LLM_PLANNERS else 30.0,
         "coordination": args.coordination}, None))
     return specs
+
+
+def coordinator_params(args: argparse.Namespace, run_dir: Path, ids: list[str]
+                       ) -> dict[str, object]:
+    """The coordinator node's parameters: its backend, the planner YAML of an LLM
+    backend's settings, its call log (``coordinator.jsonl``) or the log it replays."""
+    params: dict[str, object] = {
+        "use_sim_time": True, "ego_ids": ",".join(ids), "backend": args.coordinator_backend,
+        "profile_file": str(run_dir / "profile_coordinator.json"),
+        "stats_file": str(run_dir / "coordinator.json")}
+    if args.coordinator_backend in ("openai", "local"):
+        config = args.coordinator_config or args.planner_config
+        if config is None and args.coordinator_backend == "local":
+            from lmpc_llm_planner.config import LOCAL_CONFIG_PATH
+
+            config = LOCAL_CONFIG_PATH
+        if config is not None:
+            params["config_file"] = str(Path(config).resolve())
+        params["log_file"] = str(run_dir / "coordinator.jsonl")
+    elif args.coordinator_backend == "replay":
+        params["replay_log"] = str(args.coordinator_replay.resolve())
+    return params
+
+
+def ego_planner_config(args: argparse.Namespace, eid: str, ego_dir: Path) -> Optional[Path]:
+    """The planner YAML of ``eid`` (None: the packaged one): ``--planner-config`` (``local``:
+    planner_local.yaml), written to ``ego_dir/planner_config.yaml`` when the ego needs its
+    own copy (``--planning-period``; ``replay``: its own log, ``--planner-replay``)."""
+    from lmpc_llm_planner.config import LOCAL_CONFIG_PATH
+
+    base = args.planner_config or (LOCAL_CONFIG_PATH if args.planner == "local" else None)
+    if args.planning_period is None and args.planner != "replay":
+        return None if base is None else Path(base).resolve()
+    import yaml
+
+    from lmpc_llm_planner.config import (
+        DEFAULT_CONFIG_PATH,
+        PlannerConfigError,
+        cadence_config,
+    )
+    from lmpc_msgs_py.yamlfile import read_mapping
+
+    if args.planning_period is not None:
+        data = cadence_config(args.planning_period, base)
+    else:
+        data = read_mapping(Path(base or DEFAULT_CONFIG_PATH), what="planner config",
+                            error=PlannerConfigError)
+    if args.planner == "replay":
+        log = (args.planner_replay / eid / "decisions.jsonl").resolve()
+        data["replay"] = {**(data.get("replay") or {}), "log_path": str(log)}
+    out = ego_dir / "planner_config.yaml"
+    out.write_text(yaml.safe_dump(data, sort_keys=False))
+    return out
 
 
 def may_end_early(name: str) -> bool:

@@ -295,7 +295,8 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
                          "endpoint (LMPC_OPENAI_BASE_URL, LMPC_OPENAI_MODEL, "
                          "LMPC_OPENAI_API_KEY);\n"
                          "local: SmolLM2-135M in llama.cpp; replay: a recorded decision log "
-                         "(--planner-config names it);\nnone: the MPC baseline alone; "
+                         "(--planner-config names it; several egos: --planner-replay);\n"
+                         "none: the MPC baseline alone; "
                          "mock: the mock LLM node playing --mock-script")
     ap.add_argument("--planner-config", type=Path,
                     help="planner YAML (default: the packaged config/planner.yaml)")
@@ -308,15 +309,7 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
                          "(default: the packaged one). It must equal the MPC's (same hash), "
                          "or the graph does not start")
     ap.add_argument("--clock", choices=["sync", "realtime"], default="sync")
-    ap.add_argument("--egos", type=int, metavar="N",
-                    help="controlled vehicles ego_1..ego_N, one MPC and one planner process "
-                         "each under /ego_k/lmpc/... (default: the family's; 1 = today's "
-                         "single-ego graph under /lmpc/...; docs/MULTI.md)")
-    ap.add_argument("--coordination", choices=["none", "distributed", "central"],
-                    default="none",
-                    help="several egos: none (independent), distributed (the planners "
-                         "resolve shared conflicts by a fixed rule set), central (a "
-                         "coordinator node sends directives)")
+    graph_multi.add_args(ap)
     ap.add_argument("--run-dir", type=Path,
                     help="run folder (default runs/<scenario>-<seed>-<time>; with --scene "
                          "runs/<scene file stem>-<time>)")

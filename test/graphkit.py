@@ -408,14 +408,23 @@ def fake_llm_reply(mode: str, request: dict[str, Any]) -> str:
 
     ``valid``: neutral choices (route candidate 0, neutral intervals of the default MPC
     config, normal weights) in the shape the request's schema asks for (the emergency
-    form has no ``scenario_encoding``). The faulty modes derive from it."""
+    form has no ``scenario_encoding``); with a coordinator's ``yield`` command in the
+    prompt (multi-ego graphs) the braking interval [-4, -2] m/s^2 instead. A coordinator's
+    request (a ``verdicts`` schema) gets :func:`fake_coordinator_reply`. The faulty modes
+    derive from the neutral answer."""
     schema = ((request.get("response_format") or {}).get("json_schema") or {}).get("schema", {})
     props = schema.get("properties", {}) if isinstance(schema, dict) else {}
+    if "verdicts" in props and mode == "valid":
+        return fake_coordinator_reply(request)
     obj: dict[str, Any] = {"reasoning": "fake model: keep going"}
     if not props or "scenario_encoding" in props:
         obj["scenario_encoding"] = {"ego_trajectory": 0, "attention": [],
                                     "agent_trajectories": {}}
     obj["action_guidance"] = {"accel_interval": 3, "steer_interval": 2}
+    if mode == "valid" and "yield at" in _command_line(request):
+        # it reads the coordinator's command in its prompt: brake ([-4, -2] m/s^2)
+        obj["reasoning"] = "fake model: the coordinator says yield"
+        obj["action_guidance"]["accel_interval"] = 1
     obj["weight_adjustment"] = {k: "normal" for k in
                                 ("tracking", "action", "smoothness", "safety")}
     if mode == "garbage":
@@ -437,6 +446,36 @@ def fake_llm_reply(mode: str, request: dict[str, Any]) -> str:
     if mode == "empty":
         return ""
     return json.dumps(obj)
+
+
+def _command_line(request: dict[str, Any]) -> str:
+    """The coordinator's command line of a planner prompt ('' = none)."""
+    for m in request.get("messages", []):
+        for line in str(m.get("content", "")).splitlines():
+            if line.startswith("Coordinator's command"):
+                return line
+    return ""
+
+
+def fake_coordinator_reply(request: dict[str, Any]) -> str:
+    """A coordinator's answer (``lmpc_llm_planner.coordination.llm``) from its prompt: the
+    car that cannot stop any more, else the one nearest its conflict's entry (ties: the
+    first listed) proceeds, every other car yields. A fixed rule read off the prompt's
+    lines, not the project's rule set (no memory of earlier rounds)."""
+    import re
+
+    user = next((m.get("content", "") for m in request.get("messages", [])
+                 if m.get("role") == "user"), "")
+    cars = []
+    for line in str(user).splitlines():
+        m = re.match(r"- (\S+): .*?(\d+) m to its entry.*can still stop before the hold "
+                     r"point: (yes|no)", line)
+        if m:
+            cars.append((m.group(3) == "yes", int(m.group(2)), len(cars), m.group(1)))
+    order = [c[3] for c in sorted(cars)]
+    return json.dumps({"reasoning": "fake coordinator: committed or nearest first",
+                       "verdicts": [{"ego_id": e, "command": "proceed" if k == 0 else "yield",
+                                     "priority": k} for k, e in enumerate(order)]})
 
 
 class FakeLlmServer:
@@ -461,6 +500,8 @@ class FakeLlmServer:
         self.delay_s = delay_s
         self.hang_s = hang_s
         self.calls: list[str] = []
+        self.prompts: list[str] = []
+        """The user message of every call, in order."""
         self.dead = False
         self._lock = threading.Lock()
         outer = self
@@ -480,6 +521,9 @@ class FakeLlmServer:
                     if mode == "crash":
                         outer.dead = True
                     outer.calls.append(mode)
+                    outer.prompts.append(next(
+                        (str(m.get("content", "")) for m in body.get("messages", [])
+                         if m.get("role") == "user"), ""))
                 if mode == "crash":
                     self.close_connection = True
                     return  # no status line: the client sees the connection drop

@@ -240,3 +240,122 @@ def test_the_graph_and_the_benchmark_know_the_same_multi_ego_families() -> None:
     from lmpc_scripts import graph_multi, multi
 
     assert set(graph_multi.MULTI_FAMILIES) == set(multi.MULTI_FAMILIES)
+
+
+def _section_together(run_dir: Path) -> int:
+    """Steps at which the two egos were both in the one-lane section (``AB`` / ``BA``,
+    one each way): what a coordinated pass never does."""
+    records = json.loads((run_dir / "episode.json").read_text())["records"]
+    lanes = {eid: {s["step"]: s["lane_id"] for s in records[eid]["steps"]} for eid in EGOS}
+    return sum(1 for k, lane in lanes["ego_1"].items()
+               if lane.startswith("AB") and lanes["ego_2"].get(k, "").startswith("BA"))
+
+
+def test_llm_planners_and_llm_coordinator_then_both_replayed(
+        tmp_path: Path, domain_id: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Both egos' planners (``--planner openai``) and the coordinator (``openai``) ask a
+    SIMULATED model (graphkit.FakeLlmServer: a planner answer is neutral, or braking while
+    its prompt carries a ``yield`` command; a coordinator answer lets the committed or
+    nearest car go first). Then the run again from its logs: every ego replays its own
+    decision log, the coordinator its call log, and nothing asks the model."""
+    from graphkit import FakeLlmServer
+
+    with FakeLlmServer([]) as server:
+        monkeypatch.setenv("LMPC_OPENAI_BASE_URL", server.base_url)
+        monkeypatch.setenv("LMPC_OPENAI_MODEL", "fake")
+        first = run_graph(tmp_path / "llm", domain_id, "--scenario", "narrow", "--seed",
+                          str(SEED), "--planner", "openai", "--coordination", "central",
+                          "--coordinator-backend", "openai", "--quiet")
+        asked = len(server.calls)
+        s = first.summary
+        run_dir = Path(s["run_dir"])
+        _assert_both_through(s)
+        assert all(n["exit_code"] == 0 and n["tracebacks"] == 0 for n in s["nodes"].values())
+        assert _section_together(run_dir) == 0
+        # the coordinator asked the model every round it had a conflict, and logged it
+        coord = s["coordinator"]
+        assert coord["backend"] == "openai" and coord["llm_source"] == "llm:fake"
+        calls = [json.loads(line) for line in
+                 (run_dir / "coordinator.jsonl").read_text().splitlines()]
+        assert len(calls) == coord["llm_calls"] > 0 and not coord["llm_errors"], coord
+        assert coord["directives_issued"] > 0
+        # each ego's planner: its own decision log, from the model, the command read
+        commands: dict[str, list[str]] = {}
+        for eid in EGOS:
+            records = [json.loads(line) for line in
+                       (run_dir / eid / "decisions.jsonl").read_text().splitlines()]
+            assert records and all(r["source"] == "llm:fake" for r in records), eid
+            commands[eid] = [r["command"] for r in records if r["command"]]
+        assert any("yield at" in c for cs in commands.values() for c in cs), commands
+        assert any("proceed at" in c for cs in commands.values() for c in cs), commands
+        planner_prompts = [p for p in server.prompts if "Cars in a shared conflict" not in p]
+        told = [p for p in planner_prompts if "Coordinator's command" in p]
+        assert told and len(told) < len(planner_prompts)  # and without a command: no line
+        assert sum("Cars in a shared conflict" in p for p in server.prompts) == len(calls)
+
+        again = run_graph(tmp_path / "replay", domain_id, "--scenario", "narrow", "--seed",
+                          str(SEED), "--planner", "replay", "--planner-replay", str(run_dir),
+                          "--coordination", "central", "--coordinator-backend", "replay",
+                          "--coordinator-replay", str(run_dir / "coordinator.jsonl"),
+                          "--quiet")
+        assert len(server.calls) == asked  # the replay asked nobody
+    r = again.summary
+    _assert_both_through(r)
+    assert r["coordinator"]["backend"] == "replay" and r["coordinator"]["replay_misses"] == 0
+    assert r["fallbacks"] == 0  # every decision found in its ego's log
+    for eid in EGOS:
+        a, b = s["egos"][eid], r["egos"][eid]
+        assert b["outcome"] == a["outcome"], eid
+        # measured equal to 0.1 s (2 runs); a directive a step later would shift it
+        assert abs(b["reached_at_s"] - a["reached_at_s"]) <= 1.0, (eid, a, b)
+        replayed = [json.loads(line) for line in
+                    (Path(r["run_dir"]) / eid / "decisions.jsonl").read_text().splitlines()]
+        assert all(d["source"] == "llm:fake" for d in replayed), eid
+    assert not graph_processes(domain_id)
+
+
+def _scripts_module(name: str) -> Any:
+    """``scripts/<name>.py`` of this checkout (the installed lmpc_scripts may be another's)."""
+    import importlib
+
+    sys.path.insert(0, str(REPO / "scripts"))
+    try:
+        return importlib.import_module(name)
+    finally:
+        sys.path.remove(str(REPO / "scripts"))
+
+
+@pytest.mark.parametrize("extra, why", [
+    (["--planner", "mock", "--mock-script", "x.yaml"], "--planner mock: a multi-ego graph"),
+    (["--planner", "replay", "--coordination", "central"], "needs --planner-replay DIR"),
+    (["--planner", "replay", "--planner-replay", "nowhere"], "the decision log of ego_1"),
+    (["--planner-replay", "nowhere"], "--planner-replay needs --planner replay"),
+    (["--coordination", "distributed", "--coordinator-backend", "openai"],
+     "needs --coordination central"),
+    (["--coordination", "central", "--coordinator-backend", "replay"],
+     "needs --coordinator-replay LOG"),
+    (["--coordination", "central", "--coordinator-replay", "c.jsonl"],
+     "--coordinator-replay needs --coordinator-backend replay"),
+    (["--coordination", "central", "--coordinator-config", "p.yaml"],
+     "--coordinator-config needs --coordinator-backend openai or local"),
+    (["--egos", "1", "--coordinator-backend", "openai"], "needs several egos"),
+])
+def test_unsupported_multi_ego_combinations_are_refused_in_one_line(
+        tmp_path: Path, extra: list[str], why: str) -> None:
+    run_graph_mod = _scripts_module("run_graph")
+    graph_multi = _scripts_module("graph_multi")
+    args = run_graph_mod.parse_args(["--scenario", "narrow", "--seed", str(SEED), *extra])
+    error = graph_multi.check_args(args, tmp_path / "run" / "scene")
+    assert error is not None and why in error and "\n" not in error, error
+
+
+def test_a_refused_combination_starts_no_node(tmp_path: Path) -> None:
+    proc = subprocess.run(
+        [sys.executable, str(RUN_GRAPH), "--scenario", "narrow", "--seed", str(SEED),
+         "--coordination", "distributed", "--coordinator-backend", "openai",
+         "--run-dir", str(tmp_path / "run"), "--quiet"],
+        capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert proc.returncode == 3
+    assert "--coordinator-backend openai needs --coordination central" in proc.stdout
+    s = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert s["outcome"] == "error" and not s["nodes"]

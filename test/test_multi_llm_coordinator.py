@@ -205,3 +205,27 @@ def test_an_llm_planner_reads_the_coordinators_command_in_its_prompt(tmp_path: P
                for b in backends.values())  # and without a command in force, no such line
     records = [json.loads(line) for eid in ids for line in logs[eid].read_text().splitlines()]
     assert {r["command"] is not None for r in records} == {True, False}
+
+
+def test_replay_answers_a_changed_prompt_by_its_round_stamp(tmp_path: Path) -> None:
+    """In the ROS graph a directive reaches its ego a step earlier or later from run to
+    run, so a replayed round's statuses (and prompt) can differ from the recorded ones:
+    ``hash_or_stamp`` answers with the round recorded at the same stamp on the same egos
+    (validated against the statuses of now), ``hash`` stays silent."""
+    log = tmp_path / "coordinator.jsonl"
+    recorded = LlmCoordinator(lambda *a: BackendReply(text=answer(
+        [("ego_1", "yield", 1), ("ego_2", "proceed", 0)]), latency_s=0.01), "llm:sim",
+        log_path=log)
+    egos = [st("ego_1", "AB_0", 60.0), st("ego_2", "BA_0", 40.0)]
+    assert [v.command for v in recorded.verdicts(egos, 2.0)] == ["yield", "proceed"]
+    moved = [st("ego_1", "AB_0", 58.0), st("ego_2", "BA_0", 41.0)]  # a step later
+    by_stamp = ReplayCoordinator(log)
+    assert [v.command for v in by_stamp.verdicts(moved, 2.0)] == ["yield", "proceed"]
+    assert by_stamp.stamp_matches == 1 and by_stamp.misses == 0
+    assert by_stamp.verdicts(moved, 3.0) == [] and by_stamp.misses == 1  # no round at 3 s
+    strict = ReplayCoordinator(log, match="hash")
+    assert strict.verdicts(moved, 2.0) == [] and strict.misses == 1
+    assert [v.command for v in strict.verdicts(egos, 2.0)] == ["yield", "proceed"]
+    # a recorded answer that is unsafe now is refused as any answer: silent
+    committed_now = [st("ego_1", "AB_0", 2.0, v=10.0), st("ego_2", "BA_0", 41.0)]
+    assert ReplayCoordinator(log).verdicts(committed_now, 2.0) == []

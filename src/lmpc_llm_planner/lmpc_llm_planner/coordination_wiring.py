@@ -1,4 +1,4 @@
-"""The planner node's coordination topics (issue 18; imports rclpy through the node).
+"""The planner node's coordination topics (issue 18; rclpy only through the node it is given).
 
 A planner of a multi-ego graph started with ``coordination`` ``distributed`` or
 ``central`` gets an :class:`~lmpc_llm_planner.coordination.link.EgoLink` and these topics:
@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from typing import Any, Callable, Optional
 
-from rclpy.clock import Clock, ClockType
 from std_msgs.msg import String
 
 from lmpc_msgs_py import qos as lmpc_qos
@@ -39,8 +38,10 @@ class CoordinationWiring:
     """See the module docstring."""
 
     def __init__(self, node: LmpcNode, *, ego_id: str, ego_ids: list[str], mode: str,
-                 space: DecisionSpace, on_silence: str = "distributed",
+                 space: DecisionSpace, wall_clock: Any, on_silence: str = "distributed",
                  on_peer: Optional[Callable[[], None]] = None) -> None:
+        """``wall_clock``: an rclpy steady clock for the connect timer (the node's clock is
+        sim time, and ``/clock`` starts only once the coordination is connected)."""
         self.node = node
         self._on_peer = on_peer
         self.link = EgoLink(ego_id, ego_ids, mode, space, on_silence=on_silence)
@@ -51,8 +52,7 @@ class CoordinationWiring:
                                                   self._on_status, shared=True)
         self._directive_sub = node.create_subscription(
             String, topics.COORD_DIRECTIVE, self._on_directive, lmpc_qos.STREAM)
-        self._connect_timer = node.create_timer(  # wall time: /clock starts after this
-            0.05, self._connect, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._connect_timer = node.create_timer(0.05, self._connect, clock=wall_clock)
 
     def _connect(self) -> None:
         """Create the hold publisher once this planner hears every ego's status publisher,

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.clock import Clock, ClockType
 
 from lmpc_msgs_py.base_node import run_node
 from lmpc_msgs_py.messages import Decision
@@ -91,6 +92,7 @@ class PlannerNode(DecisionNode):
             raise ValueError(f"coordination {mode!r} needs the parameter ego_id")
         wiring = CoordinationWiring(self, ego_id=self.ego_id, ego_ids=ego_ids or [self.ego_id],
                                     mode=mode, space=space, on_silence=on_silence,
+                                    wall_clock=Clock(clock_type=ClockType.STEADY_TIME),
                                     on_peer=lambda: self._try_pending(force=False))
         self.get_logger().info(f"coordination {mode} among {', '.join(sorted(wiring.link.known))}")
         return wiring

@@ -16,8 +16,9 @@
   interval would leave the band is moved to the interval that brings the speed back
   into it (mildest braking above the band, neutral inside it).
 
-An LLM backend would take the command as prompt text instead (extension point:
-``command_text``); not wired yet (docs/MULTI.md).
+An LLM planner also reads the command as prompt text (``Command.text()`` into
+``PlannerCore.on_command``: in-process ``Coordination.command_text``, in the ROS graph
+``CoordinationWiring.command_text``; docs/MULTI.md).
 """
 from __future__ import annotations
 

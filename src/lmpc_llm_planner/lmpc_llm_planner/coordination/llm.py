@@ -224,10 +224,21 @@ class LlmCoordinator:
 
 class ReplayCoordinator:
     """Answers from a coordinator log of :class:`LlmCoordinator` by prompt hash (a prompt
-    seen several times: its answers in order, then the last one again); a prompt the log
-    does not have is a silent round (counted in ``misses``)."""
+    seen several times: its answers in order, then the last one again). ``match``
+    ``hash_or_stamp`` (default): a prompt the log does not have gets the answer recorded
+    for a round at the same stamp on the same egos (counted in ``stamp_matches``;
+    validated against the statuses of now, as any answer), as the planner's replay does
+    (in the ROS graph a directive reaches its ego a step earlier or later from run to
+    run, so the statuses and with them the prompt's numbers can differ); ``hash``: only
+    the same prompt. A round with no answer is silent (counted in ``misses``)."""
 
-    def __init__(self, log_path: Path) -> None:
+    def __init__(self, log_path: Path, *, match: str = "hash_or_stamp") -> None:
+        if match not in ("hash", "hash_or_stamp"):
+            raise ValueError(f"replay coordinator: match {match!r} is not hash or "
+                             "hash_or_stamp")
+        self.match = match
+        self._by_stamp: dict[tuple[int, tuple[str, ...]], list[Optional[str]]] = {}
+        self.stamp_matches = 0
         path = Path(log_path)
         try:
             lines = path.read_text(encoding="utf-8").splitlines()
@@ -244,6 +255,8 @@ class ReplayCoordinator:
             except (ValueError, KeyError, TypeError):
                 continue  # not a record of this log
             self._answers.setdefault(sha, []).append(text)
+            self._by_stamp.setdefault(_round_key(rec.get("stamp_s"), rec.get("prompt")),
+                                      []).append(text)
             sources[str(rec.get("source", "replay"))] += 1
             caps[cap] += 1
         if not self._answers:
@@ -258,20 +271,35 @@ class ReplayCoordinator:
         egos = participants(statuses)
         if not egos:
             return []
-        sha = _sha(coordinator_prompt(egos, now_s,
-                                      max_reasoning_chars=self.max_reasoning_chars))
+        prompt = coordinator_prompt(egos, now_s, max_reasoning_chars=self.max_reasoning_chars)
+        key = sha = _sha(prompt)
         answers = self._answers.get(sha)
+        if not answers and self.match == "hash_or_stamp":
+            key = repr(_round_key(now_s, prompt))
+            answers = self._by_stamp.get(_round_key(now_s, prompt))
+            self.stamp_matches += bool(answers)
         if not answers:
             self.misses += 1
             return []
-        text = answers[min(self._used[sha], len(answers) - 1)]
-        self._used[sha] += 1
+        text = answers[min(self._used[key], len(answers) - 1)]
+        self._used[key] += 1
         if text is None:
             return []  # the recorded call failed: silent then, silent now
         try:
             return parse_verdicts(text, egos)
         except ValueError:
             return []
+
+
+def _round_key(stamp_s: Any, prompt: Any) -> tuple[int, tuple[str, ...]]:
+    """A round by its stamp (0.1 s) and the egos its prompt lists."""
+    try:
+        k = round(float(stamp_s) * 10.0)
+    except (TypeError, ValueError):
+        k = -1
+    ids = tuple(line[2:].split(":", 1)[0] for line in str(prompt or "").splitlines()
+                if line.startswith("- "))
+    return k, ids
 
 
 def _sha(text: str) -> str:
