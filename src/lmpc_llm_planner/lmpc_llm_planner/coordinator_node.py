@@ -42,6 +42,7 @@ from lmpc_llm_planner.coordination.coordinator import (
     make_coordinator_backend,
 )
 from lmpc_llm_planner.coordination.link import PEER_ACTIVE_S, _key
+from lmpc_llm_planner.coordination.llm import LlmCoordinator, ReplayCoordinator
 
 KEEP_STAMPS = 40
 QUIET_WALL_S = 0.5
@@ -160,10 +161,10 @@ class CoordinatorNode(LmpcNode):
             "directives_issued": self.core.issued, "directives_refused": self.core.refused,
             "statuses_dropped": self.counters.get("dropped_messages", 0)}
         b = self.core.backend
-        if hasattr(b, "calls"):  # an LLM backend (coordination/llm.py)
+        if isinstance(b, LlmCoordinator):
             out.update(llm_source=b.name, llm_calls=b.calls, llm_errors=dict(b.errors),
                        llm_last_error=b.last_error)
-        if hasattr(b, "misses"):  # replay
+        elif isinstance(b, ReplayCoordinator):
             out.update(llm_source=b.name, replay_misses=b.misses,
                        replay_stamp_matches=b.stamp_matches)
         return out
