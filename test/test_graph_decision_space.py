@@ -124,3 +124,40 @@ def test_a_decision_published_before_the_mpc_matched_still_reaches_it(
         g.wait_for_log("mpc", "REFUSED decision before-the-match", 30)
         g.stop_all()
     assert logs_with_tracebacks(tmp_path / "run") == {}
+
+
+@pytest.mark.graph
+def test_the_sync_barrier_gives_up_on_a_lost_decision_once(tmp_path: Path,
+                                                           domain_id: int) -> None:
+    """Ego states that name a decision the MPC never gets (lost, or its planner died
+    after the status): the MPC waits for it once (``BARRIER_WAIT_S``), then computes
+    every step's control without waiting again (it waited on every step before: 1 s of
+    wall time per step until the planner's next decision)."""
+    from lmpc_msgs_py import qos as lmpc_qos
+    from lmpc_msgs_py.codec import encode
+    from lmpc_mpc import synthetic as S
+
+    road = S.straight_road()
+    steps = 6
+    with NodeSet(tmp_path / "run", domain_id) as g, Probe(domain_id) as probe:
+        probe.listen("/lmpc/control")
+        g.start("mpc", {"use_sim_time": False, "clock_mode": "sync"})
+        probe.publish("/lmpc/map", encode(road), lmpc_qos.LATCHED)
+        for topic in ("/lmpc/agents", "/lmpc/signals", "/lmpc/ego_state"):
+            probe.publish(topic, "")  # creates the publisher (dropped and counted)
+            probe.wait_subscribers(topic, 1, 60)
+        for k in range(steps):
+            ego = S.ego_state(x_m=20.0 + k, y_m=-4.8, yaw_rad=0.0, v_mps=8.0,
+                              stamp_s=0.1 * k, seq=k, required_decision_id="never-sent")
+            obs = S.observation(road, ego)
+            probe.publish("/lmpc/agents", encode(obs.agents))
+            probe.publish("/lmpc/signals", encode(obs.signals))
+            probe.publish("/lmpc/ego_state", encode(ego))
+            probe.wait_until(f"the control for step {k}", lambda n=k + 1: len(
+                probe.messages("/lmpc/control")) >= n, 30)
+        probe.wait_until("the MPC's diagnostics", lambda: int(
+            probe.diag("/mpc_controller").get("barrier_timeouts", "-1")) >= 0, 10)
+        timeouts = int(probe.diag("/mpc_controller")["barrier_timeouts"])
+        g.stop_all()
+    assert timeouts == 1, timeouts
+    assert logs_with_tracebacks(tmp_path / "run") == {}

@@ -71,6 +71,8 @@ class MpcNode(LmpcNode):
         self._signals: dict[float, SignalStates] = {}
         self._pending: list[tuple[EgoState, float]] = []  # (ego, wall time received)
         self._decision_ids: set[str] = set()
+        self._barrier_given_up: dict[str, None] = {}
+        """Decisions the sync barrier stopped waiting for (insertion-ordered, bounded)."""
         self._refusal: Optional[str] = None
         """Why the last refused decision was refused (diagnostics message), if any."""
         self._last_clock_s: Optional[float] = None
@@ -203,12 +205,19 @@ class MpcNode(LmpcNode):
             if (agents is None or signals is None) and waited < PAIR_WAIT_S:
                 return
             need = ego.required_decision_id
-            if need is not None and need not in self._decision_ids:
+            if need is not None and need not in self._decision_ids \
+                    and need not in self._barrier_given_up:
                 if waited < BARRIER_WAIT_S:
                     return
+                # once per decision: the next steps name it too (until the planner's next
+                # one), and waiting again on each would cost every step BARRIER_WAIT_S
                 self.counters["barrier_timeouts"] += 1
+                self._barrier_given_up[need] = None
+                if len(self._barrier_given_up) > 64:
+                    del self._barrier_given_up[next(iter(self._barrier_given_up))]
                 self.log_event("barrier", f"decision {need!r} not received within "
-                               f"{BARRIER_WAIT_S:.0f} s; computing anyway")
+                               f"{BARRIER_WAIT_S:.0f} s; computing without it (not waiting "
+                               "for it again)")
             if agents is None:
                 agents = self._newest(self._agents, ego.stamp_s)
                 self.counters["unpaired_agents"] += 1
