@@ -14,6 +14,7 @@ The bridge is the clock source (``/clock``) and runs on wall time itself.
 """
 from __future__ import annotations
 
+import functools
 import json
 import math
 import sys
@@ -116,6 +117,45 @@ class _RunStats:
     solve_ms: list[float] = field(default_factory=list)
     late_controls: int = 0
     control_modes: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
+class EgoInputs:
+    """What the bridge receives for one ego and steps on: its newest control, how far its
+    planner has got, the decision its next observation names (sync barrier), the wall
+    times of each step's publication and control, and the run's statistics."""
+
+    latest_control: Optional[Control] = None
+    planner_stamp_s: float = -1.0
+    required_decision_id: Optional[str] = None
+    timing: dict[int, _StepTiming] = field(default_factory=dict)
+    stats: _RunStats = field(default_factory=_RunStats)
+
+    def take_control(self, msg: Control, dt_s: float) -> None:
+        timing = self.timing.get(round(msg.stamp_s / dt_s))
+        if timing is not None and timing.control_wall_s is None:
+            timing.control_wall_s = time.monotonic()
+        if self.latest_control is None or msg.stamp_s >= self.latest_control.stamp_s:
+            self.latest_control = msg
+
+    def take_status(self, msg: PlannerStatus) -> None:
+        self.planner_stamp_s = max(self.planner_stamp_s, msg.stamp_s)
+        if msg.last_decision_id is not None:
+            self.required_decision_id = msg.last_decision_id
+
+    def applied(self, k: int, control: Optional[Control]) -> Optional[_StepTiming]:
+        """Count step ``k``'s control (None: late, the ego brakes); its timing when the
+        control arrived (for the control-cycle stages), else None."""
+        if control is None:
+            self.stats.late_controls += 1
+        else:
+            self.stats.solve_ms.append(control.solve_time_ms)
+            modes = self.stats.control_modes
+            modes[control.mode] = modes.get(control.mode, 0) + 1
+        timing = self.timing.pop(k, None)
+        if timing is None or timing.control_wall_s is None or control is None:
+            return None
+        return timing
 
 
 def _percentiles(values: list[float]) -> dict[str, Optional[float]]:
@@ -257,6 +297,29 @@ class BridgeBase(LmpcNode):
         self.finished = True
         self.finished_wall_s = time.monotonic()
 
+    def _try_sync_step(self) -> None:
+        raise NotImplementedError
+
+    # -- inputs of one ego -----------------------------------------------------------------
+    def _on_control(self, ego: EgoInputs, msg: Control) -> None:
+        if self.finished:
+            return
+        ego.take_control(msg, self.sim_dt_s)
+        if self.cfg.clock_mode == "sync":
+            self._try_sync_step()
+
+    def _on_decision(self, ego: EgoInputs, msg: Decision) -> None:
+        ego.stats.decisions.setdefault(msg.decision_id, msg.source)
+
+    def _on_planner_status(self, ego: EgoInputs, msg: PlannerStatus) -> None:
+        ego.take_status(msg)
+        if self.cfg.clock_mode == "sync" and not self.finished:
+            self._try_sync_step()
+
+    @property
+    def sim_dt_s(self) -> float:
+        raise NotImplementedError
+
 
 class BridgeNode(BridgeBase):
     def __init__(self) -> None:
@@ -292,41 +355,21 @@ class BridgeNode(BridgeBase):
         self.pub_odom = self.create_publisher(
             Odometry, self.topic(topics.EGO_ODOM), lmpc_qos.MIRROR)
 
-        self.json_subscription(Control, topics.CONTROL, self._on_control)
-        self.json_subscription(Decision, topics.DECISION, self._on_decision)
-        self.json_subscription(PlannerStatus, topics.PLANNER_STATUS, self._on_planner_status)
-
-        self.stats = _RunStats()
-        self.timing: dict[int, _StepTiming] = {}
-        self.latest_control: Optional[Control] = None
-        self.planner_stamp_s = -1.0
-        self.required_decision_id: Optional[str] = None
+        self.inputs = EgoInputs()
+        self.json_subscription(Control, topics.CONTROL,
+                               functools.partial(self._on_control, self.inputs))
+        self.json_subscription(Decision, topics.DECISION,
+                               functools.partial(self._on_decision, self.inputs))
+        self.json_subscription(PlannerStatus, topics.PLANNER_STATUS,
+                               functools.partial(self._on_planner_status, self.inputs))
 
         self.pub_map.publish(self.sim.map)
         self._start_timers(self.sim.dt_s)
         self.get_logger().info(f"run folder {self.run_dir}")
 
-    def _on_control(self, msg: Control) -> None:
-        if self.finished:
-            return
-        k = round(msg.stamp_s / self.sim.dt_s)
-        timing = self.timing.get(k)
-        if timing is not None and timing.control_wall_s is None:
-            timing.control_wall_s = time.monotonic()
-        if self.latest_control is None or msg.stamp_s >= self.latest_control.stamp_s:
-            self.latest_control = msg
-        if self.cfg.clock_mode == "sync":
-            self._try_sync_step()
-
-    def _on_decision(self, msg: Decision) -> None:
-        self.stats.decisions.setdefault(msg.decision_id, msg.source)
-
-    def _on_planner_status(self, msg: PlannerStatus) -> None:
-        self.planner_stamp_s = max(self.planner_stamp_s, msg.stamp_s)
-        if msg.last_decision_id is not None:
-            self.required_decision_id = msg.last_decision_id
-        if self.cfg.clock_mode == "sync" and not self.finished:
-            self._try_sync_step()
+    @property
+    def sim_dt_s(self) -> float:
+        return self.sim.dt_s
 
     # -- stepping ------------------------------------------------------------------------
     def _ready_to_start(self) -> Optional[str]:
@@ -347,14 +390,14 @@ class BridgeNode(BridgeBase):
         # mode a decision the MPC never received (it joined late, DDS lost it) would make
         # the MPC wait BARRIER_WAIT_S on every step until the next decision, so every
         # control would come too late. Realtime decisions act when they arrive.
-        required = self.required_decision_id if self.cfg.clock_mode == "sync" else None
+        required = self.inputs.required_decision_id if self.cfg.clock_mode == "sync" else None
         times = self.stage_times
         with times.stage("observe"):
             obs: Observation = self.sim.observe(required_decision_id=required)
         t = obs.stamp_s
         self.pub_clock.publish(Clock(clock=_stamp(t)))
         self._step_published()
-        self.timing[obs.ego.seq] = _StepTiming(published_wall_s=self.last_publish_wall_s)
+        self.inputs.timing[obs.ego.seq] = _StepTiming(published_wall_s=self.last_publish_wall_s)
         self.pub_ego.publish(obs.ego)
         self.pub_agents.publish(obs.agents)
         self.pub_signals.publish(obs.signals)
@@ -366,7 +409,7 @@ class BridgeNode(BridgeBase):
             self.get_logger().info(
                 f"progress t={t:.1f}s v={obs.ego.v_mps:.1f}m/s "
                 f"dist_to_target={obs.ego.dist_to_target_m:.1f}m "
-                f"decisions={len(self.stats.decisions)}"
+                f"decisions={len(self.inputs.stats.decisions)}"
             )
             self.pub_episode.publish(self.sim.status())
 
@@ -374,20 +417,15 @@ class BridgeNode(BridgeBase):
         self.pub_odom.publish(odometry(ego, "ego"))
 
     def _control_for_current_step(self) -> Optional[Control]:
-        return control_for_step(self.latest_control, self.sim.time_s, self.cfg)
+        return control_for_step(self.inputs.latest_control, self.sim.time_s, self.cfg)
 
     def _advance(self, control: Optional[Control]) -> None:
         k = self.sim.step_index
         if control is None:
-            self.stats.late_controls += 1
             self.log_event("late-control", f"no control for step {k} (t={self.sim.time_s:.1f}s): "
                            "braking the ego at a bounded deceleration")
-        else:
-            self.stats.solve_ms.append(control.solve_time_ms)
-            modes = self.stats.control_modes
-            modes[control.mode] = modes.get(control.mode, 0) + 1
-        timing = self.timing.pop(k, None)
-        if timing is not None and timing.control_wall_s is not None and control is not None:
+        timing = self.inputs.applied(k, control)
+        if timing is not None and timing.control_wall_s is not None:
             self.stage_times.add(CONTROL_WAIT_STAGE,
                                  (timing.control_wall_s - timing.published_wall_s) * 1e3)
             self.stage_times.add("wait: after the control (planner status)",
@@ -416,7 +454,8 @@ class BridgeNode(BridgeBase):
         return gone
 
     def _planner_done(self) -> bool:
-        if not self.cfg.wait_for_planner or self.planner_stamp_s >= self.sim.time_s - 1e-6:
+        if not self.cfg.wait_for_planner \
+                or self.inputs.planner_stamp_s >= self.sim.time_s - 1e-6:
             return True
         return self._planner_gone()
 
@@ -470,7 +509,7 @@ class BridgeNode(BridgeBase):
         self._write_episode(status)
 
     def _write_episode(self, status: EpisodeStatus) -> None:
-        sources = list(self.stats.decisions.values())
+        sources = list(self.inputs.stats.decisions.values())
         warnings = [f"traffic: {line}" for line in self.sim.traffic_warnings()]
         for line in warnings:
             self.get_logger().warning(line)
@@ -485,9 +524,9 @@ class BridgeNode(BridgeBase):
             "metrics": status.metrics.model_dump(),
             "decisions": len(sources),
             "fallbacks": sum(1 for s in sources if s == "fallback"),
-            "late_controls": self.stats.late_controls,
-            "control_modes": self.stats.control_modes,
-            "mpc_solve_ms": _percentiles(self.stats.solve_ms),
+            "late_controls": self.inputs.stats.late_controls,
+            "control_modes": self.inputs.stats.control_modes,
+            "mpc_solve_ms": _percentiles(self.inputs.stats.solve_ms),
             "control_latency_ms": _wait_percentiles(self.stage_times.summary()),
             "dropped_messages": self.counters.get("dropped_messages", 0),
             "step0_epoch_s": self.step0_epoch_s,
@@ -504,8 +543,8 @@ class BridgeNode(BridgeBase):
         mode = "finished" if self.finished else ("running" if self.started else "waiting")
         self.publish_diagnostics(0, mode, {
             "sim_time_s": round(self.sim.time_s, 2),
-            "late_controls": self.stats.late_controls,
-            "decisions": len(self.stats.decisions),
+            "late_controls": self.inputs.stats.late_controls,
+            "decisions": len(self.inputs.stats.decisions),
         })
 
     def destroy_node(self) -> None:

@@ -28,7 +28,7 @@ import functools
 import json
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal, Optional
 
 from nav_msgs.msg import Odometry
@@ -40,8 +40,8 @@ from lmpc_bridge.bridge_node import (
     SCENE_ERROR_EXIT,
     BridgeBase,
     BridgeTiming,
+    EgoInputs,
     _percentiles,
-    _RunStats,
     _stamp,
     _StepTiming,
     control_for_step,
@@ -77,9 +77,9 @@ class MultiBridgeConfig(BridgeTiming):
     connected (their hold / directive publishers exist only then)."""
 
 
-@dataclass
-class _Ego:
-    """One ego's topics and bookkeeping."""
+@dataclass(kw_only=True)
+class _Ego(EgoInputs):
+    """One ego's topics and inputs."""
 
     eid: str
     pub_map: JsonPublisher[MapSnapshot]
@@ -88,11 +88,6 @@ class _Ego:
     pub_signals: JsonPublisher[SignalStates]
     pub_episode: JsonPublisher[EpisodeStatus]
     pub_odom: object
-    latest_control: Optional[Control] = None
-    planner_stamp_s: float = -1.0
-    required_decision_id: Optional[str] = None
-    timing: dict[int, _StepTiming] = field(default_factory=dict)
-    stats: _RunStats = field(default_factory=_RunStats)
     ended: bool = False
 
 
@@ -137,28 +132,9 @@ class MultiBridgeNode(BridgeBase):
         self._start_timers(self.sim.dt_s)
         self.get_logger().info(f"egos {', '.join(self.egos)}; run folder {self.run_dir}")
 
-    # -- inputs --------------------------------------------------------------------------
-    def _on_control(self, ego: _Ego, msg: Control) -> None:
-        if self.finished:
-            return
-        k = round(msg.stamp_s / self.sim.dt_s)
-        timing = ego.timing.get(k)
-        if timing is not None and timing.control_wall_s is None:
-            timing.control_wall_s = time.monotonic()
-        if ego.latest_control is None or msg.stamp_s >= ego.latest_control.stamp_s:
-            ego.latest_control = msg
-        if self.cfg.clock_mode == "sync":
-            self._try_sync_step()
-
-    def _on_decision(self, ego: _Ego, msg: Decision) -> None:
-        ego.stats.decisions.setdefault(msg.decision_id, msg.source)
-
-    def _on_planner_status(self, ego: _Ego, msg: PlannerStatus) -> None:
-        ego.planner_stamp_s = max(ego.planner_stamp_s, msg.stamp_s)
-        if msg.last_decision_id is not None:
-            ego.required_decision_id = msg.last_decision_id
-        if self.cfg.clock_mode == "sync" and not self.finished:
-            self._try_sync_step()
+    @property
+    def sim_dt_s(self) -> float:
+        return self.sim.dt_s
 
     # -- per-ego state -------------------------------------------------------------------
     def _running(self) -> list[_Ego]:
@@ -227,16 +203,11 @@ class MultiBridgeNode(BridgeBase):
         for ego in self._running():
             control = controls.get(ego.eid)
             if control is None:
-                ego.stats.late_controls += 1
                 self.log_event(f"late-control:{ego.eid}", f"{ego.eid}: no control for step {k} "
                                f"(t={self.sim.time_s:.1f}s): braking that ego at a bounded "
                                "deceleration")
-            else:
-                ego.stats.solve_ms.append(control.solve_time_ms)
-                ego.stats.control_modes[control.mode] = \
-                    ego.stats.control_modes.get(control.mode, 0) + 1
-            timing = ego.timing.pop(k, None)
-            if timing is not None and timing.control_wall_s is not None and control is not None:
+            timing = ego.applied(k, control)
+            if timing is not None and timing.control_wall_s is not None:
                 ms = (timing.control_wall_s - timing.published_wall_s) * 1e3
                 self.stage_times.add(CONTROL_WAIT_STAGE, ms)
                 self.stage_times.add(_wait_stage(ego.eid), ms)
