@@ -249,7 +249,9 @@ def ego_planner_config(args: argparse.Namespace, eid: str, ego_dir: Path) -> Opt
                             error=PlannerConfigError)
     if args.planner == "replay":
         log = (args.planner_replay / eid / "decisions.jsonl").resolve()
-        data["replay"] = {**(data.get("replay") or {}), "log_path": str(log)}
+        # stamps may shift by a step or two in the graph (ReplayConfig.stamp_window_s)
+        data["replay"] = {**(data.get("replay") or {}), "log_path": str(log),
+                          "stamp_window_s": 0.5}
     out = ego_dir / "planner_config.yaml"
     out.write_text(yaml.safe_dump(data, sort_keys=False))
     return out

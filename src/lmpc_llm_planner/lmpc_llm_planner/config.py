@@ -169,6 +169,12 @@ class ReplayConfig(_Frozen):
     match: Literal["hash", "hash_or_stamp"] = "hash_or_stamp"
     """``hash``: only an identical prompt (sha256) is answered; ``hash_or_stamp``: else
     the next unused recorded call with the same stamp, mode and stage."""
+    stamp_window_s: float = Field(default=0.0, ge=0.0, le=5.0)
+    """``hash_or_stamp``: with no call at the request's stamp, the unused call of the same
+    mode and stage nearest in stamp within this window (0: exact stamps only, in process
+    a replay repeats the stamps). A replay through the ROS graph sets 0.5 s: there a
+    directive or hold reaches an ego a step earlier or later from run to run, which can
+    shift an emergency request by a step or two and the later requests with it."""
     latency: Literal["sleep", "report"] = "report"
     """``report``: answer at once and report the recorded latency, which the planner takes
     as the decision's (an exact repeat in sim time); ``sleep``: spend the recorded wall

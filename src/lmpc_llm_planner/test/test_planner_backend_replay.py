@@ -48,14 +48,15 @@ def cfg_with(base: PlannerConfig, **kw) -> PlannerConfig:
     return PlannerConfig.model_validate({**base.model_dump(), **kw})
 
 
-def observations(map_, obs_factory, t_end_s: float = 5.0):
+def observations(map_, obs_factory, t_end_s: float = 5.0, offset_s: float = 0.0):
+    """The scene every 0.1 s; ``offset_s`` shifts the stamps (the same situations)."""
     out = []
     for k in range(int(round(t_end_s / 0.1)) + 1):
         t = k * 0.1
         car = syn.agent("car1", x_m=-1.6, y_m=40.0 - 10.0 * t, yaw_rad=-math.pi / 2,
                         v_mps=10.0, lane_id="N_in_0")
-        out.append(obs_factory(map_, ego_y_m=-40.0 + 6.0 * t, ego_v_mps=6.0, stamp_s=t,
-                               seq=k, agents=[car]))
+        out.append(obs_factory(map_, ego_y_m=-40.0 + 6.0 * t, ego_v_mps=6.0,
+                               stamp_s=round(t + offset_s, 3), seq=k, agents=[car]))
     return out
 
 
@@ -166,6 +167,25 @@ def test_changed_prompt_matches_by_stamp_or_misses(recorded, planner_config, mpc
     assert core.counters.errors["transport"] == 2 * len(missed)
     reply = hash_only.complete(core_request(core, obs_list[0], instruction="please hurry"))
     assert reply.error_kind == "transport" and "no recorded answer for stamp 0.000" in reply.error
+
+
+def test_shifted_stamps_match_within_the_window_only(recorded, left_turn_map, obs_factory,
+                                                     planner_config, mpc_config):
+    """The same situations 0.2 s later (in the ROS graph a request can move by a step or
+    two): exact stamps miss them; a 0.5 s window answers each with the nearest call."""
+    log, _, original = recorded
+    shifted = observations(left_turn_map, obs_factory, offset_s=0.2)
+    exact = ReplayBackend(load_replay_log(log), ReplayConfig(latency="report"))
+    missed = drive(PlannerCore(planner_config, exact, mpc_config), shifted,
+                   instruction="please hurry")
+    assert exact.hits["miss"] > 0 and all(d.source == "fallback" for d in missed)
+    near = ReplayBackend(load_replay_log(log), ReplayConfig(latency="report",
+                                                            stamp_window_s=0.5))
+    replayed = drive(PlannerCore(planner_config, near, mpc_config), shifted,
+                     instruction="please hurry")
+    assert near.hits == {"near": 5}
+    assert [d.accel_interval for d in replayed] == [d.accel_interval for d in original]
+    assert [d.source for d in replayed] == [d.source for d in original]
 
 
 def core_request(core: PlannerCore, obs, **kw):

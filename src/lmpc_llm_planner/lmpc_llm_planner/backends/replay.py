@@ -8,7 +8,9 @@ error kind). Each recorded call is answered once, chosen by
 1. the sha256 of the request's prompt (the same prompt -> the same recorded call, in
    recorded order when one prompt was asked more than once);
 2. (``match: hash_or_stamp``) else the next unused call recorded for the same stamp,
-   mode and stage (the prompt generator changed, but the situation is the same);
+   mode and stage (the prompt generator changed, but the situation is the same), and
+   with ``stamp_window_s`` > 0 the unused call of that mode and stage nearest in stamp
+   within the window (``near``; a replay through the ROS graph);
 3. else, for a prompt seen before whose calls are used up, its last recorded call
    again (the same prompt gets the same answer).
 
@@ -172,7 +174,7 @@ class ReplayBackend:
         self._last_for_hash: dict[str, RecordedCall] = {}
         self._lock = threading.Lock()
         self.hits: Counter[str] = Counter()
-        """How requests were answered: hash, stamp, repeat, miss."""
+        """How requests were answered: hash, stamp, near, repeat, miss."""
 
     @classmethod
     def from_config(cls, config: ReplayConfig) -> "ReplayBackend":
@@ -191,6 +193,8 @@ class ReplayBackend:
             found, how = self._first_unused(self._by_hash.get(sha, ())), "hash"
             if found is None and self.config.match == "hash_or_stamp":
                 found, how = self._first_unused(self._by_situation.get(key, ())), "stamp"
+                if found is None and self.config.stamp_window_s > 0.0:
+                    found, how = self._nearest_unused(key), "near"
             if found is None and sha in self._last_for_hash:
                 found, how = self._last_for_hash[sha], "repeat"
             if found is None:
@@ -203,6 +207,16 @@ class ReplayBackend:
 
     def _first_unused(self, calls: Any) -> Optional[RecordedCall]:
         return next((c for c in calls if c.index not in self._used), None)
+
+    def _nearest_unused(self, key: tuple[int, str, str]) -> Optional[RecordedCall]:
+        """The unused call of ``key``'s mode and stage nearest to its stamp within
+        ``stamp_window_s`` (ties: the earlier one), else None."""
+        stamp_ms, mode, stage = key
+        window_ms = self.config.stamp_window_s * 1000.0
+        near = [(abs(k[0] - stamp_ms), k[0], c) for k, calls in self._by_situation.items()
+                if k[1] == mode and k[2] == stage and abs(k[0] - stamp_ms) <= window_ms
+                for c in calls if c.index not in self._used]
+        return min(near, key=lambda t: (t[0], t[1], t[2].index))[2] if near else None
 
     # -- Backend ---------------------------------------------------------------------------
     def complete(self, request: DecisionRequest) -> BackendReply:
