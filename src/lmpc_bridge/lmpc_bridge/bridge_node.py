@@ -510,6 +510,7 @@ class BridgeNode(BridgeBase):
 
     def _write_episode(self, status: EpisodeStatus) -> None:
         sources = list(self.inputs.stats.decisions.values())
+        record = self.sim.record()
         warnings = [f"traffic: {line}" for line in self.sim.traffic_warnings()]
         for line in warnings:
             self.get_logger().warning(line)
@@ -525,6 +526,8 @@ class BridgeNode(BridgeBase):
             "decisions": len(sources),
             "fallbacks": sum(1 for s in sources if s == "fallback"),
             "late_controls": self.inputs.stats.late_controls,
+            # vehicles SUMO inserted onto the ego's body, held back (lmpc_bridge.insertion)
+            "held_insertions": record.held_insertions,
             "control_modes": self.inputs.stats.control_modes,
             "mpc_solve_ms": _percentiles(self.inputs.stats.solve_ms),
             "control_latency_ms": _wait_percentiles(self.stage_times.summary()),
@@ -533,7 +536,7 @@ class BridgeNode(BridgeBase):
             "end_epoch_s": time.time(),
             "profile_ms": self.stage_times.summary(),
             "warnings": warnings,
-            "record": self.sim.record().to_json(),
+            "record": record.to_json(),
         }
         path = self.run_dir / "episode.json"
         path.write_text(json.dumps(out, indent=1))

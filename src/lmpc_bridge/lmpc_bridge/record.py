@@ -78,6 +78,11 @@ class EpisodeRecord(_Frozen):
     outcome: str = "running"
     reached_at_s: Optional[float] = None
     collided_with: Optional[str] = None
+    held_insertions: int = 0
+    """Vehicles SUMO inserted onto the ego's body that the bridge took out again until
+    their spot was clear (``lmpc_bridge.insertion``; one per hold)."""
+    insertion_holds: tuple[str, ...] = ()
+    """One line per hold and per release (time, vehicle, place)."""
     steps: tuple[StepRecord, ...] = ()
 
     def to_json(self) -> dict[str, Any]:

@@ -45,6 +45,7 @@ from lmpc_bridge import demand as traffic
 from lmpc_bridge import sumo_rng
 from lmpc_bridge.dynamics import EgoPose, clamp_control, step_bicycle
 from lmpc_bridge.geometry import OrientedBox, boxes_overlap
+from lmpc_bridge.insertion import InsertionGuard, guard_box
 from lmpc_bridge.mapping import RouteGeometry, build_map, read_net
 from lmpc_bridge.metrics import compute_metrics
 from lmpc_bridge.participants import (
@@ -95,6 +96,8 @@ class SimState:
     collided_with: str | None
     reached_at_s: float | None
     max_time_s: float
+    guard: InsertionGuard | None = None
+    """The held vehicles (not in SUMO's state) and the hold count at that step."""
 
 
 class SimError(RuntimeError):
@@ -152,6 +155,7 @@ class SumoSim:
         self._collided_with: str | None = None
         self._reached_at_s: float | None = None
         self._max_time_s = 200.0
+        self._guard = InsertionGuard()
         self._foes_query_ok = True
         self._route_edges: set[str] | None = None
         self._tls_links: dict[tuple[str, int | None], list[tuple[Any, Any]]] | None = None
@@ -298,7 +302,8 @@ class SumoSim:
             route_index=self._route_index, dist_to_target_m=self._dist_to_target_m,
             signals=self._signals, steps=tuple(self._steps),
             outcome=self._outcome, detail=self._detail, collided_with=self._collided_with,
-            reached_at_s=self._reached_at_s, max_time_s=self._max_time_s)
+            reached_at_s=self._reached_at_s, max_time_s=self._max_time_s,
+            guard=self._guard.copy())
 
     def _correct_rng_counts(self, path: Path) -> None:
         """The saved counts of the static generators as draws since this simulation's
@@ -356,6 +361,7 @@ class SumoSim:
         self._outcome, self._detail = state.outcome, state.detail
         self._collided_with, self._reached_at_s = state.collided_with, state.reached_at_s
         self._max_time_s = state.max_time_s
+        self._guard = state.guard.copy() if state.guard is not None else InsertionGuard()
 
     def _check_start_free(self, scene: Scene) -> None:
         """After the warm-up: SimError when a vehicle occupies the ego's start slot."""
@@ -428,6 +434,8 @@ class SumoSim:
         for vid, vals in results.items():
             if tc.VAR_POSITION not in vals:
                 continue  # e.g. a person type's entry (libsumo merges domains)
+            if vid in self._guard.held:
+                continue  # inserted into the ego and taken out again after the step
             if vid == EGO_ID:
                 lane = vals.get(tc.VAR_LANE_ID) or None
                 self._ego_lane = lane
@@ -555,7 +563,13 @@ class SumoSim:
             t.vehicle.moveToXY(EGO_ID, "", -1, p.x_m + half * math.cos(p.yaw_rad),
                                p.y_m + half * math.sin(p.yaw_rad),
                                sumo_angle_from_yaw(p.yaw_rad), keepRoute=2)
+            now = round((self._step_index + 1) * DT_S, 6)
+            guard = [guard_box(p.x_m, p.y_m, p.yaw_rad, self._vehicle.length_m,
+                               self._vehicle.width_m, p.v_mps)]
+            if self._guard.held:
+                self._guard.release_clear(t, guard, now)
             t.simulationStep()
+            self._guard.hold_overlapping(t, guard, now, (EGO_ID,))
         except Exception as exc:  # noqa: BLE001 - SUMO errors end the episode, not the process
             self._step_index += 1
             self._finish("error", f"SUMO failed: {exc}")
@@ -658,7 +672,10 @@ class SumoSim:
         except (OSError, ValueError) as exc:
             return (f"traffic files not checked: {exc}",)
         lines = traffic.window_warnings(declared, window)
-        count = traffic.read_entry_count(self._traci) if self._started else None
+        # a held vehicle counts once in SUMO's insertions per hold (it was inserted, then
+        # taken out): the ego's insertion and the holds are not traffic that entered
+        count = (traffic.read_entry_count(self._traci, ego_inserted=1 + self._guard.count)
+                 if self._started else None)
         if count is not None and not lines:
             lines += traffic.entry_warnings(declared, window, count)
         return tuple(lines)
@@ -676,5 +693,6 @@ class SumoSim:
             max_time_s=self._max_time_s, target_center=scene.target.center,
             target_radius_m=scene.target.radius_m, outcome=self._outcome,
             reached_at_s=self._reached_at_s, collided_with=self._collided_with,
+            held_insertions=self._guard.count, insertion_holds=tuple(self._guard.log),
             steps=tuple(self._steps),
         )

@@ -181,6 +181,7 @@ def _run_scene(method: str, family: str, seed: int, settings: RunSettings, build
         "compute_ms_p99": round(percentile(result.compute_wall_ms, 0.99), 3),
         "wall_s": round(time.perf_counter() - started, 2),
         **latency_cells(method, settings.latency),
+        "held_insertions": result.record.held_insertions,
         "detail": detail,
         # the style and situation figures (lmpc_bridge.evaluation.style / .situations);
         # not columns of results.csv
