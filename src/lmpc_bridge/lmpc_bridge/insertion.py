@@ -34,7 +34,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
-from typing import Any, Container, Sequence
+from typing import Any, Container, Mapping
 
 from lmpc_bridge.geometry import OrientedBox, boxes_overlap
 from lmpc_bridge.participants import yaw_from_sumo_angle
@@ -77,6 +77,8 @@ class HeldVehicle:
     """(edge, end position, lane index, duration, flags, start position, until) each."""
     box: OrientedBox
     held_at_s: float
+    egos: tuple[str, ...] = ()
+    """The egos whose (grown) box it overlapped."""
 
 
 @dataclass
@@ -85,46 +87,60 @@ class InsertionGuard:
 
     held: dict[str, HeldVehicle] = field(default_factory=dict)
     count: int = 0
-    log: list[str] = field(default_factory=list)
+    by_ego: dict[str, int] = field(default_factory=dict)
+    """Hold events per ego whose (grown) box the insertion overlapped."""
+    log: list[tuple[str, tuple[str, ...]]] = field(default_factory=list)
+    """(line, egos concerned) per hold and per release."""
 
     def copy(self) -> "InsertionGuard":
-        return InsertionGuard(held=dict(self.held), count=self.count, log=list(self.log))
+        return InsertionGuard(held=dict(self.held), count=self.count, by_ego=dict(self.by_ego),
+                              log=list(self.log))
 
-    def hold_overlapping(self, traci: Any, ego_boxes: Sequence[OrientedBox], now_s: float,
-                         skip: Container[str]) -> list[str]:
+    def lines(self, ego_id: str | None = None) -> tuple[str, ...]:
+        """The log lines (of holds and releases concerning ``ego_id``; None: all)."""
+        return tuple(line for line, egos in self.log if ego_id is None or ego_id in egos)
+
+    def _note(self, line: str, egos: tuple[str, ...]) -> None:
+        self.log.append((line, egos))
+        _LOG.info(line)
+
+    def hold_overlapping(self, traci: Any, ego_boxes: Mapping[str, OrientedBox],
+                         now_s: float, skip: Container[str]) -> list[str]:
         """After a step: take out the vehicles inserted in it that overlap a (grown) ego
-        box; returns their ids."""
+        box (``ego_boxes``: ego id -> its grown box); returns their ids."""
         departed = [v for v in traci.simulation.getDepartedIDList() if v not in skip]
         out = []
         for vid in departed:
             box = _box_of(traci, vid)
-            if not any(boxes_overlap(g, box) for g in ego_boxes):
+            egos = [eid for eid, g in sorted(ego_boxes.items()) if boxes_overlap(g, box)]
+            if not egos:
                 continue
-            held = _capture(traci, vid, box, now_s)
+            held = _capture(traci, vid, box, now_s, tuple(egos))
             traci.vehicle.remove(vid)
             self.held[vid] = held
             self.count += 1
+            for eid in egos:
+                self.by_ego[eid] = self.by_ego.get(eid, 0) + 1
             line = (f"{now_s:.1f} s: held {vid} ({held.type_id}) back, SUMO inserted it at "
-                    f"{held.pos_m:.1f} m on {held.lane_id}, on the ego's body")
-            self.log.append(line)
-            _LOG.info(line)
+                    f"{held.pos_m:.1f} m on {held.lane_id}, on the body of "
+                    f"{', '.join(egos)}")
+            self._note(line, held.egos)
             out.append(vid)
         return out
 
-    def release_clear(self, traci: Any, ego_boxes: Sequence[OrientedBox],
+    def release_clear(self, traci: Any, ego_boxes: Mapping[str, OrientedBox],
                       now_s: float) -> list[str]:
         """Before a step (egos moved): add again the held vehicles whose spot is clear of
         every (grown) ego box; returns their ids."""
         out = []
         for vid in sorted(self.held):
             h = self.held[vid]
-            if any(boxes_overlap(g, h.box) for g in ego_boxes):
+            if any(boxes_overlap(g, h.box) for g in ego_boxes.values()):
                 continue
             _re_add(traci, h)
             del self.held[vid]
             line = f"{now_s:.1f} s: released {vid} (held {now_s - h.held_at_s:.1f} s)"
-            self.log.append(line)
-            _LOG.info(line)
+            self._note(line, h.egos)
             out.append(vid)
         return out
 
@@ -137,7 +153,8 @@ def _box_of(traci: Any, vid: str) -> OrientedBox:
                        yaw, length, float(traci.vehicle.getWidth(vid)))
 
 
-def _capture(traci: Any, vid: str, box: OrientedBox, now_s: float) -> HeldVehicle:
+def _capture(traci: Any, vid: str, box: OrientedBox, now_s: float,
+             egos: tuple[str, ...]) -> HeldVehicle:
     v = traci.vehicle
     route = tuple(v.getRoute(vid))[int(v.getRouteIndex(vid)):]
     stops = tuple(
@@ -148,7 +165,8 @@ def _capture(traci: Any, vid: str, box: OrientedBox, now_s: float) -> HeldVehicl
         vehicle_id=vid, edges=route, type_id=str(v.getTypeID(vid)),
         lane_index=int(v.getLaneIndex(vid)), lane_id=str(v.getLaneID(vid)),
         pos_m=float(v.getLanePosition(vid)), speed_mps=float(v.getSpeed(vid)),
-        speed_factor=float(v.getSpeedFactor(vid)), stops=stops, box=box, held_at_s=now_s)
+        speed_factor=float(v.getSpeedFactor(vid)), stops=stops, box=box, held_at_s=now_s,
+        egos=egos)
 
 
 def _re_add(traci: Any, h: HeldVehicle) -> None:

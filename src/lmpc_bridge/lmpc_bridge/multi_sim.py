@@ -50,6 +50,7 @@ from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 from lmpc_bridge.dynamics import EgoPose, clamp_control, step_bicycle
 from lmpc_bridge.geometry import OrientedBox, boxes_overlap
+from lmpc_bridge.insertion import InsertionGuard, guard_box
 from lmpc_bridge.mapping import RouteGeometry, build_map, read_net
 from lmpc_bridge.metrics import compute_metrics
 from lmpc_bridge import sumo_rng
@@ -128,6 +129,7 @@ class MultiSumoSim:
         self._max_time_s = 200.0
         self._still_since_s: Optional[float] = 0.0
         self.deadlock = False
+        self._guard = InsertionGuard()
 
     # --- lifecycle ----------------------------------------------------------------------
     def reset(self, family: str, seed: int, *, max_time_s: float | None = None
@@ -142,6 +144,7 @@ class MultiSumoSim:
         self._scene = scene
         self._max_time_s = scene.max_time_s if max_time_s is None else float(max_time_s)
         self._step_index, self._still_since_s, self.deadlock = 0, 0.0, False
+        self._guard = InsertionGuard()
         self.egos = {}
         t = self._traci
         cmd = [self._binary, "-n", str(scene.net_file), "-r", str(scene.route_file),
@@ -245,8 +248,8 @@ class MultiSumoSim:
         results = t.vehicle.getContextSubscriptionResults(ego.ego_id) or {}
         seen: dict[str, Seen] = {}
         for vid, vals in results.items():
-            if tc.VAR_POSITION not in vals:
-                continue
+            if tc.VAR_POSITION not in vals or vid in self._guard.held:
+                continue  # (held: inserted onto an ego, taken out again after the step)
             if vid == ego.ego_id:
                 ego.lane = vals.get(tc.VAR_LANE_ID) or None
                 ego.lane_pos_m = float(vals.get(tc.VAR_LANEPOSITION, 0.0))
@@ -336,8 +339,16 @@ class MultiSumoSim:
                                    sumo_angle_from_yaw(p.yaw_rad), keepRoute=1)
             except Exception as exc:  # noqa: BLE001
                 ego.outcome, ego.detail = "error", f"SUMO failed to move {eid}: {exc}"
+        # every running ego's body: no vehicle is inserted onto it (lmpc_bridge.insertion)
+        now = round((self._step_index + 1) * DT_S, 6)
+        guard = {eid: guard_box(e.pose.x_m, e.pose.y_m, e.pose.yaw_rad,
+                                self._vehicle.length_m, self._vehicle.width_m, e.pose.v_mps)
+                 for eid, e in self.egos.items() if e.running}
         try:
+            if self._guard.held:
+                self._guard.release_clear(t, guard, now)
             t.simulationStep()
+            self._guard.hold_overlapping(t, guard, now, self.egos)
         except Exception as exc:  # noqa: BLE001 - SUMO errors end the episode
             self._step_index += 1
             for e in self.egos.values():
@@ -465,4 +476,6 @@ class MultiSumoSim:
             max_time_s=self._max_time_s, target_center=ego.spec.target.center,
             target_radius_m=ego.spec.target.radius_m, outcome=ego.outcome,
             reached_at_s=ego.reached_at_s, collided_with=ego.collided_with,
+            held_insertions=self._guard.by_ego.get(ego_id, 0),
+            insertion_holds=self._guard.lines(ego_id),
             steps=tuple(ego.steps))

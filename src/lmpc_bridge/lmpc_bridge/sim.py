@@ -564,8 +564,8 @@ class SumoSim:
                                p.y_m + half * math.sin(p.yaw_rad),
                                sumo_angle_from_yaw(p.yaw_rad), keepRoute=2)
             now = round((self._step_index + 1) * DT_S, 6)
-            guard = [guard_box(p.x_m, p.y_m, p.yaw_rad, self._vehicle.length_m,
-                               self._vehicle.width_m, p.v_mps)]
+            guard = {EGO_ID: guard_box(p.x_m, p.y_m, p.yaw_rad, self._vehicle.length_m,
+                                       self._vehicle.width_m, p.v_mps)}
             if self._guard.held:
                 self._guard.release_clear(t, guard, now)
             t.simulationStep()
@@ -693,6 +693,6 @@ class SumoSim:
             max_time_s=self._max_time_s, target_center=scene.target.center,
             target_radius_m=scene.target.radius_m, outcome=self._outcome,
             reached_at_s=self._reached_at_s, collided_with=self._collided_with,
-            held_insertions=self._guard.count, insertion_holds=tuple(self._guard.log),
+            held_insertions=self._guard.count, insertion_holds=self._guard.lines(),
             steps=tuple(self._steps),
         )
