@@ -104,8 +104,8 @@ class InsertionGuard:
         self.log.append((line, egos))
         _LOG.info(line)
 
-    def hold_overlapping(self, traci: Any, ego_boxes: Mapping[str, OrientedBox],
-                         now_s: float, skip: Container[str]) -> list[str]:
+    def hold_overlapping(self, traci: Any, ego_boxes: Mapping[str, OrientedBox], *,
+                         now_s: float, skip: Container[str] = ()) -> list[str]:
         """After a step: take out the vehicles inserted in it that overlap a (grown) ego
         box (``ego_boxes``: ego id -> its grown box); returns their ids."""
         departed = [v for v in traci.simulation.getDepartedIDList() if v not in skip]
@@ -128,7 +128,7 @@ class InsertionGuard:
             out.append(vid)
         return out
 
-    def release_clear(self, traci: Any, ego_boxes: Mapping[str, OrientedBox],
+    def release_clear(self, traci: Any, ego_boxes: Mapping[str, OrientedBox], *,
                       now_s: float) -> list[str]:
         """Before a step (egos moved): add again the held vehicles whose spot is clear of
         every (grown) ego box; returns their ids."""

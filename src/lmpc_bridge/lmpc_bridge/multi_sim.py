@@ -346,9 +346,9 @@ class MultiSumoSim:
                  for eid, e in self.egos.items() if e.running}
         try:
             if self._guard.held:
-                self._guard.release_clear(t, guard, now)
+                self._guard.release_clear(t, guard, now_s=now)
             t.simulationStep()
-            self._guard.hold_overlapping(t, guard, now, self.egos)
+            self._guard.hold_overlapping(t, guard, now_s=now, skip=self.egos)
         except Exception as exc:  # noqa: BLE001 - SUMO errors end the episode
             self._step_index += 1
             for e in self.egos.values():

@@ -567,9 +567,9 @@ class SumoSim:
             guard = {EGO_ID: guard_box(p.x_m, p.y_m, p.yaw_rad, self._vehicle.length_m,
                                        self._vehicle.width_m, p.v_mps)}
             if self._guard.held:
-                self._guard.release_clear(t, guard, now)
+                self._guard.release_clear(t, guard, now_s=now)
             t.simulationStep()
-            self._guard.hold_overlapping(t, guard, now, (EGO_ID,))
+            self._guard.hold_overlapping(t, guard, now_s=now, skip=(EGO_ID,))
         except Exception as exc:  # noqa: BLE001 - SUMO errors end the episode, not the process
             self._step_index += 1
             self._finish("error", f"SUMO failed: {exc}")
