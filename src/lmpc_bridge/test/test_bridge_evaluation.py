@@ -2,16 +2,18 @@
 and its Table I on a hand-made summary."""
 from __future__ import annotations
 
+import csv
 import os
 import subprocess
 import sys
 from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 
 import pytest
 
 from lmpc_bridge.evaluation.executors import make_executor
 
-from lmpc_bridge.evaluation.rows import latency_cells, parse_seeds
+from lmpc_bridge.evaluation.rows import COLUMNS, error_row, latency_cells, parse_seeds, read_rows
 from lmpc_bridge.evaluation.table import aggregate, table2_md, table_md
 
 
@@ -81,3 +83,26 @@ def test_table_ii_lists_the_ablation_rows_in_the_papers_order() -> None:
     assert lines[2].startswith("| RAB |") and lines[6].startswith("| USI |")
     assert lines[3].endswith("| 95.0 |")
     assert table2_md(aggregate(rows[-2:])) == ""
+
+
+def test_read_rows_of_a_file_written_before_held_insertions(tmp_path: Path) -> None:
+    """An older results.csv (``--replay-from`` a stored run) lacks ``held_insertions``:
+    read as 0; a file lacking any other column is refused, naming it."""
+    row = error_row("mpc", "usi", 3, "x")
+    row["outcome"], row["fail"] = "reached", 0
+    row.update({c: 1.0 for c in COLUMNS if isinstance(row[c], float)})
+    old = [c for c in COLUMNS if c != "held_insertions"]
+    path = tmp_path / "results.csv"
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=old, extrasaction="ignore")
+        w.writeheader()
+        w.writerow(row)
+    (got,) = read_rows(path, {("mpc", "usi", 3)})
+    assert got["held_insertions"] == 0 and got["seed"] == 3
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=[c for c in old if c != "stale_steps"],
+                           extrasaction="ignore")
+        w.writeheader()
+        w.writerow(row)
+    with pytest.raises(KeyError, match="stale_steps"):
+        read_rows(path, {("mpc", "usi", 3)})

@@ -78,6 +78,9 @@ def error_row(method: str, family: str, seed: int, detail: str,
 _INT_COLUMNS = ("seed", "collision", "fail", "off_route", "decisions", "fallbacks", "steps",
                 "route_overrides", "stale_steps", "stale_agent_steps", "held_insertions")
 _TEXT_COLUMNS = ("family", "method", "outcome", "detail", "latency_s", "emergency_latency_s")
+_ADDED_COLUMNS = {"held_insertions": "0"}
+"""Columns added after files were stored (``--replay-from`` of an older run): read as
+this value where a file lacks them (no vehicle was held: the guard did not exist)."""
 
 
 def read_rows(path: Path, jobs: set[tuple[str, str, int]], *,
@@ -91,6 +94,7 @@ def read_rows(path: Path, jobs: set[tuple[str, str, int]], *,
     rows = []
     with open(path, newline="") as fh:
         for line, raw in enumerate(csv.DictReader(fh), start=2):
+            raw = {**_ADDED_COLUMNS, **raw}
             missing = [c for c in COLUMNS if c not in raw]
             if missing:
                 raise KeyError(f"line {line}: no column(s) {missing}")
