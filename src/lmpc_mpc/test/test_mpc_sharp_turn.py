@@ -39,8 +39,8 @@ def sharp_junction(turn_deg: float = 123.0, radius_m: float = 4.4, *,
         S._lane(":J_0_0", S._line(0.0, 0.0, 0.0, 8.0), internal=True,
                 successors=[LaneLink(to_lane="B_0", direction="s")]),
         S._lane("B_0", S._line(0.0, 8.0, 0.0, 108.0)),
-        S._lane(":J_1_0", arc, internal=True, successors=[LaneLink(to_lane="C_0",
-                                                                    direction="r")]),
+        S._lane(":J_1_0", arc, internal=True,
+                successors=[LaneLink(to_lane="C_0", direction="r")]),
         S._lane("C_0", S._line(float(end[0]), float(end[1]), float(out_end[0]),
                                float(out_end[1]))),
     )
@@ -56,8 +56,8 @@ def test_only_junctions_turning_more_than_110_degrees_are_sharp() -> None:
     assert not route_path(sharp_junction(105.0, radius_m=8.0)).sharp_turns
 
 
-def test_the_route_reference_in_a_sharp_turn_keeps_to_the_centreline(solver: MpcSolver
-                                                                      ) -> None:
+def test_the_route_reference_in_a_sharp_turn_keeps_to_the_centreline(
+        solver: MpcSolver) -> None:
     m = sharp_junction()
     centre = route_path(m).line
     # the ego entering the turn, 0.3 m outside the centreline, yawed 20 deg into it
