@@ -335,7 +335,8 @@ def route_path(map: MapSnapshot) -> Optional[RoutePath]:
 SHARP_TURN_RAD = math.radians(110.0)
 """A route junction (a run of internal lanes) turning by more than this is a sharp turn:
 the MPC then tracks the route's own centreline through it (:func:`sharp_turn_path`).
-The five families' junctions turn by at most ~95 degrees (docs/lmpc_mpc.md)."""
+The ego routes of the five families turn by at most 90 degrees at a junction
+(seeds 0-24; docs/lmpc_mpc.md)."""
 SHARP_EXIT_M = 5.0
 """The sharp-turn path is kept this far past the turn's end (the car straightens out)."""
 SHARP_LANE_CHANGE_M = 20.0
