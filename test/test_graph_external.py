@@ -46,22 +46,19 @@ def _scene(tmp_path: Path, name: str) -> Path:
     return path
 
 
-# The off-route check (issue 21) found lmpc-rules leaving its route on the random and spider
-# nets (it used to count as "reached" after a detour); open, kept visible as strict xfails.
-# Cause (traced 2026-12-03, docs/lmpc_bridge_external.md "Off route"): not a lane change; a
-# junction turn sharper than 110 degrees (the random net's 123-degree right turn, a
-# spider junction's 120-degree left turn) that the car runs wide of, onto the next road.
-# On the spider net the baseline does too; on the random net the baseline, slower through
-# the turn and re-planning its route reference every step, makes it, while the rules'
-# decision curve (fixed for 2.5 s) and its speed guidance do not (slowing to 2 m/s and
-# steering guidance alone did not fix it).
-_OPEN_OFF_ROUTE = {"rand", "spider"}
+# The off-route check (issue 21) found lmpc-rules (and on spider the baseline too) leaving
+# its route on the random and spider nets, at a junction turn sharper than 110 degrees
+# (rand: 123 degrees right, spider: 126 degrees left; ~4.4 m radius, the car's kinematic
+# limit). Cause and fix (docs/lmpc_bridge_external.md, "Leaving the route"): the Bezier
+# reference cut the turn, the lead-in (for a car turned away from its path) fired mid-turn
+# and replaced the rest of it by a 6 m arc, and a decision's curve rebased in the turn
+# curled back; near such a turn the MPC now tracks the route's own centreline
+# (lmpc_mpc.reference.sharp_turn_path) for every method. Kept for a net that fails anew.
+_OPEN_OFF_ROUTE: set[str] = set()
 
 
 @pytest.mark.parametrize("name", [
-    pytest.param(n, marks=pytest.mark.xfail(strict=True, reason="runs wide of a >110 deg junction "
-                                            "turn, off_route (lmpc-rules; spider: mpc too); "
-                                            "issue 21 open"))
+    pytest.param(n, marks=pytest.mark.xfail(strict=True, reason="off_route; issue 21 open"))
     if n in _OPEN_OFF_ROUTE else n for n in sorted(BUILDERS)])
 def test_both_methods_reach_the_target(tmp_path: Path, name: str) -> None:
     scene = _scene(tmp_path, name)

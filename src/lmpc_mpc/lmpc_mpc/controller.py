@@ -43,6 +43,8 @@ from lmpc_mpc.reference import (
     route_candidate,
     route_path,
     route_progress,
+    sharp_turn_near,
+    sharp_turn_path,
     timed_reference,
 )
 from lmpc_mpc.route_guard import RouteLeave, leaves_route
@@ -122,6 +124,9 @@ steer bias is replaced by the path's own (``MpcController._problem``)."""
 _LEAD_IN_OFF_RAD = math.radians(60.0)
 _LEAD_IN_M = 6.0
 _LEAD_IN_RADIUS_M = 6.0
+_TURNED_AWAY_M = 2.0
+_SHARP_ON_ROUTE_M = 3.0
+"""The sharp-turn reference is for an ego on its route: farther off, the usual one."""
 
 
 def stop_distance_m(obs: Observation, *, length_m: float) -> Optional[float]:
@@ -185,6 +190,17 @@ def _lead_in(path: np.ndarray, x_m: float, y_m: float, yaw_rad: float) -> np.nda
     arc = np.column_stack([cx + side * r * np.sin(yaw_rad + side * phi),
                            cy - side * r * np.cos(yaw_rad + side * phi)])
     return np.vstack([arc, path[k + 1:]]) if k + 1 < len(path) else arc
+
+
+def _turned_away(path: np.ndarray, x_m: float, y_m: float, yaw_rad: float) -> bool:
+    """The path's start (its point ``_TURNED_AWAY_M`` ahead) lies more than
+    ``_LEAD_IN_OFF_RAD`` off the ego's heading: the ego stands turned away from its path,
+    not merely at the start of a tight turn (where the point 6 m ahead may be)."""
+    cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    k = min(int(np.searchsorted(cum, _TURNED_AWAY_M)), len(path) - 1)
+    d = path[k] - np.array([x_m, y_m])
+    return abs(math.remainder(math.atan2(d[1], d[0]) - yaw_rad, 2.0 * math.pi)) \
+        > _LEAD_IN_OFF_RAD
 
 
 class MpcController(CrossingRules):
@@ -413,7 +429,14 @@ class MpcController(CrossingRules):
         # route reference instead, with the decision's weights and speed guidance
         leave = self._route_leave(obs, decision) if decision is not None else None
         lane_change_refused: tuple[str, ...] = ()
-        if decision is not None and leave is None:
+        sharp = self._sharp_turn(obs)
+        if sharp is not None:
+            # near / in a junction turn sharper than 110 degrees: the route's own
+            # centreline, whatever the decision's curve (see _sharp_turn)
+            path = sharp
+            ref_id = decision.ego_trajectory.candidate_id \
+                if decision is not None and leave is None else None
+        elif decision is not None and leave is None:
             pts = self._decision_curve(obs, decision)
             # the curve starts where the ego was when the planner looked: go on from
             # the closest point ahead of the ego now
@@ -449,7 +472,8 @@ class MpcController(CrossingRules):
         else:
             weights = cfg.decision_space.weights_for(None)
             bias = (0.0, 0.0)
-        path = _lead_in(path, ego.x_m, ego.y_m, ego.yaw_rad)
+        if sharp is None or _turned_away(path, ego.x_m, ego.y_m, ego.yaw_rad):
+            path = _lead_in(path, ego.x_m, ego.y_m, ego.yaw_rad)
         v_limit = veh.max_speed_mps
         lane = lane_at(obs.map, x_m=ego.x_m, y_m=ego.y_m, yaw_rad=ego.yaw_rad,
                        lane_id=ego.lane_id)
@@ -579,6 +603,35 @@ class MpcController(CrossingRules):
         if bias_mps2 < lo:
             return np.where(v_next > 1e-3, bias_mps2, min(lo, 0.0))
         return np.where(v_next < v_max_mps - 0.1, bias_mps2, 0.0)
+
+    def _sharp_turn(self, obs: Observation) -> Optional[np.ndarray]:
+        """The route's own centreline (``sharp_turn_path``) when the ego's route has a
+        junction turn sharper than ``SHARP_TURN_RAD`` within the lookahead ahead of it
+        (or the ego is in it) and the ego is within ``_SHARP_ON_ROUTE_M`` of its route;
+        else None (always None on a route without such a turn: nothing else changes).
+
+        Why (issue 21, the random and spider nets): such a turn (~120 degrees through a
+        ~4.4 m radius) is at the car's kinematic limit (~4.2 m at full steer). The Bezier
+        references cut it; a decision's curve, fixed for its 2.5 s and rebased from a pose
+        in the turn, curled back (its curvature then braked the reference to a stop, the
+        car stood in the junction); and with the path point 6 m ahead more than 60
+        degrees off the heading mid-turn, the lead-in replaced the rest of the turn by a
+        6 m arc: the car ran wide onto the next road. On the centreline the reference's
+        curvature speed cap brakes for the real radius, and the lead-in is only for an
+        ego turned away from the path's start (``_turned_away``). A decision's candidate
+        along the route is thereby followed through its lanes; its weights and speed
+        guidance stay, and a lane change it asks for waits until past the turn."""
+        route = route_path(obs.map)
+        if route is None or not route.sharp_turns:
+            return None
+        s = self._progress(obs)
+        look = self.config.lookahead_m
+        if not sharp_turn_near(route, s, look) or s is None:
+            return None
+        on = route.line.at(s)[0]
+        if math.hypot(obs.ego.x_m - on[0], obs.ego.y_m - on[1]) > _SHARP_ON_ROUTE_M:
+            return None
+        return sharp_turn_path(route, obs.ego.x_m, obs.ego.y_m, s, look)
 
     def _progress(self, obs: Observation) -> Optional[float]:
         """The ego's monotone progress along its route (None: no route in the map)."""

@@ -218,6 +218,13 @@ class RoutePath:
     lane_ids: tuple[str, ...]
     lane_start_m: np.ndarray
     """Arc length on ``line`` where each lane of ``lane_ids`` starts."""
+    sharp_turns: tuple[tuple[float, float], ...] = ()
+    """(start, end) arc lengths of the route's junctions that turn by more than
+    ``SHARP_TURN_RAD`` (a run of internal lanes; :func:`sharp_turn_path`)."""
+    jumps: tuple[tuple[float, float, float, float], ...] = ()
+    """Lane changes the route needs (the next route lane does not start where the last
+    one ends): (arc length where the next lane starts, length of the joining segment,
+    offset x, y from that start back to the last lane's end)."""
 
     def lane_at(self, s_m: float) -> int:
         """Index into ``lane_ids`` of the lane at arc length ``s_m``."""
@@ -280,12 +287,111 @@ def _route_path(map_: MapSnapshot, lanes: dict[str, Lane], lines: dict[str, _Pol
     lane_start = np.array([line.project(float(p[0]), float(p[1]))[0] for p in first])
     lane_start[0] = 0.0
     lane_start = np.maximum.accumulate(lane_start)
-    return RoutePath(line, tuple(ids), lane_start)
+    jumps = []
+    for i in range(1, len(ids)):
+        end, start = lines[ids[i - 1]].pts[-1], lines[ids[i]].pts[0]
+        gap = float(math.hypot(*(end - start)))
+        if gap > _JUMP_M:
+            jumps.append((float(lane_start[i]), gap, float(end[0] - start[0]),
+                          float(end[1] - start[1])))
+    sharp: list[tuple[float, float]] = []
+    i = 0
+    while i < len(ids):
+        if not lanes[ids[i]].internal:
+            i += 1
+            continue
+        j = i
+        while j + 1 < len(ids) and lanes[ids[j + 1]].internal:
+            j += 1
+        # from the heading the route enters the junction with to the one it leaves with
+        ends = ([lines[ids[i - 1]].pts[-2:]] if i > 0 else []) + \
+            [lines[lid].pts for lid in ids[i:j + 1]] + \
+            ([lines[ids[j + 1]].pts[:2]] if j + 1 < len(ids) else [])
+        turn = _turned_rad(*ends)
+        if abs(turn) > SHARP_TURN_RAD:
+            end_m = float(lane_start[j + 1]) if j + 1 < len(ids) else line.length_m
+            sharp.append((float(lane_start[i]), end_m))
+        i = j + 1
+    return RoutePath(line, tuple(ids), lane_start, tuple(sharp), tuple(jumps))
+
+
+def _turned_rad(*pieces: np.ndarray) -> float:
+    """Signed heading change along polyline pieces (the sum of the turns between their
+    consecutive segments; the gap between two pieces, a lane change, is no segment)."""
+    parts = [np.diff(_dedupe(np.asarray(p, dtype=float)), axis=0) for p in pieces]
+    d = np.concatenate([p for p in parts if len(p)], axis=0) if any(len(p) for p in parts) \
+        else np.zeros((0, 2))
+    if len(d) < 2:
+        return 0.0
+    h = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    return float(h[-1] - h[0])
 
 
 def route_path(map: MapSnapshot) -> Optional[RoutePath]:
     """The ego's route as one polyline (cached per map snapshot), or None without one."""
     return _index(map).route
+
+
+SHARP_TURN_RAD = math.radians(110.0)
+"""A route junction (a run of internal lanes) turning by more than this is a sharp turn:
+the MPC then tracks the route's own centreline through it (:func:`sharp_turn_path`).
+The ego routes of the five families turn by at most 90 degrees at a junction
+(seeds 0-24; docs/lmpc_mpc.md)."""
+SHARP_EXIT_M = 5.0
+"""The sharp-turn path is kept this far past the turn's end (the car straightens out)."""
+SHARP_LANE_CHANGE_M = 20.0
+"""Over this length a lane change of the route is faded in on the sharp-turn path."""
+_JUMP_M = 0.5
+SHARP_SMOOTH_M = 2.0
+"""Half-width of the moving average that rounds the polyline corners of the centreline in
+:func:`sharp_turn_path` (applied twice: a triangular kernel of +-2 m)."""
+
+
+def sharp_turn_near(route: Optional[RoutePath], progress_m: Optional[float],
+                    ahead_m: float) -> bool:
+    """The ego (at ``progress_m`` on ``route``) is within ``ahead_m`` before one of the
+    route's sharp turns, or in it, or less than ``SHARP_EXIT_M`` past it."""
+    if route is None or progress_m is None or not route.sharp_turns:
+        return False
+    return any(a - ahead_m <= progress_m <= b + SHARP_EXIT_M for a, b in route.sharp_turns)
+
+
+def sharp_turn_path(route: RoutePath, x_m: float, y_m: float, progress_m: float,
+                    lookahead_m: float, *, ds_m: float = 0.25) -> np.ndarray:
+    """A path along the route's own centreline from ``progress_m`` on, for sharp turns.
+
+    The Bezier candidates (10 control points over the lookahead, :func:`route_candidate`)
+    follow a junction turn of ~120 degrees through a ~4.4 m radius (the car turns no
+    tighter than ~4.2 m at full steer) poorly: they cut it, and rebuilt from a pose in
+    the turn they curl back. Here: the route polyline sampled every ``ds_m``; a lane
+    change the route needs (its polyline jumps sideways) faded in over
+    ``SHARP_LANE_CHANGE_M`` after the jump; the corners rounded by a moving average
+    (twice over +-``SHARP_SMOOTH_M``: ~0.1 m inside a 4.4 m arc); and the ego's offset
+    from it at ``progress_m`` faded out over the first few metres (a raised cosine over
+    4 m + 2x the offset), so the path starts at the ego. ``(M, 2)``."""
+    line = route.line
+    pad = 2.0 * SHARP_SMOOTH_M
+    ss = np.arange(progress_m - pad, progress_m + lookahead_m + pad + 0.5 * ds_m, ds_m)
+    c = line.at(ss)
+    keep = np.ones(len(ss), dtype=bool)
+    for s_j, gap, dx, dy in route.jumps:
+        keep &= ~((ss > s_j - gap) & (ss < s_j))  # the joining segment itself
+        after = ss >= s_j
+        w = 0.5 * (1.0 + np.cos(np.pi * np.clip((ss[after] - s_j) / SHARP_LANE_CHANGE_M,
+                                                0.0, 1.0)))
+        c[after] += w[:, None] * np.array([dx, dy])[None, :]
+    c, ss = c[keep], ss[keep]
+    k = max(1, int(round(SHARP_SMOOTH_M / ds_m)))
+    kernel = np.ones(2 * k + 1) / (2 * k + 1)
+    for _ in range(2):
+        c = np.column_stack([np.convolve(np.pad(c[:, j], k, mode="edge"), kernel,
+                                         mode="valid") for j in range(2)])
+    inside = (ss >= progress_m - 1e-9) & (ss <= progress_m + lookahead_m + 1e-9)
+    c, along = c[inside], ss[inside] - progress_m
+    off = np.array([x_m, y_m]) - c[0]
+    blend_m = 4.0 + 2.0 * float(np.hypot(off[0], off[1]))
+    w = 0.5 * (1.0 + np.cos(np.pi * np.clip(along / blend_m, 0.0, 1.0)))
+    return _dedupe(c + w[:, None] * off[None, :])
 
 
 ROUTE_BACK_SLACK_M = 0.5
