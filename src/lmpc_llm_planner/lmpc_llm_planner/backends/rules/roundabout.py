@@ -124,9 +124,9 @@ def _hold_unless_room_to_speed_up(inp: RuleInputs, plan: Plan, man: Maneuver, v_
     """Far from the yield line: the way-is-clear rule would speed up towards the limit,
     and that speed-up lasts until the next decision. Where the ego could no longer slow
     comfortably after it (checked as if it accelerated at ``turn_accel_mps2`` for
-    ``replan_s``), the go rule keeps the speed instead (``Plan.hold_speed``): rab seed 10049 (training) sped up from 9.3 to
-    12.5 m/s 50 m out, was then too close to stop for the ring car it had not seen yet,
-    committed, and was hit in the entry."""
+    ``replan_s``), the go rule keeps the speed instead (``Plan.hold_speed``): rab seed
+    10049 (training) sped up from 9.3 to 12.5 m/s 50 m out, was then too close to stop
+    for the ring car it had not seen yet, committed, and was hit in the entry."""
     cfg = inp.cfg
     approach = inp.scene.lanes.get(man.approach_lane_id)
     limit = approach.speed_limit_mps if approach is not None else v_mps
