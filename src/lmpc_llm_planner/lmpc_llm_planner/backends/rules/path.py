@@ -141,7 +141,10 @@ def go_rule(inp: RuleInputs, plan: Plan) -> None:
         _follow(inp, plan, close)
         return
     style = speed_style(inp, plan)
-    slows = style == "conservative" and ego.v_mps >= CONSERVATIVE_SPEED_FRACTION * limit
+    # (the conservative band below brakes only above 75 %; between 65 and 75 % its neutral
+    # bias at "normal" lets the MPC speed up like any other: rab 10049 conservative)
+    slows = style == "conservative" and \
+        ego.v_mps >= (CONSERVATIVE_SPEED_FRACTION + 0.1) * limit
     if plan.hold_speed is not None and not slows:
         # a junction rule found a speed-up unsafe: keep the speed (with the action weight
         # "normal" the MPC would track the speed limit rather than the neutral bias)
