@@ -167,3 +167,33 @@ def test_emergency_answer_has_no_lane_choice_but_brakes(road, planner_config, mp
     w, _ = ask(road_obs(road, [hazard]), planner_config, mpc_config, mode="emergency")
     assert getattr(w, "scenario_encoding", None) is None
     assert mid(accel, w.action_guidance.accel_interval) < 0.0
+
+
+def test_a_slower_car_ahead_in_the_lane_the_path_merges_into_is_followed(
+        road, planner_config, mpc_config):
+    """The go rule's close leader: a car in the next lane counts when the chosen path
+    merges into that lane (lane 10014 aggressive, a training seed: the ego sped up past a
+    slower car in the lane its route merged into and then merged into it), and the ego
+    eases off to merge behind it; with the path in its own lane the car stays ignored."""
+    from lmpc_llm_planner.backends.rules.backend import rule_inputs, start_plan
+    from lmpc_llm_planner.backends.rules.path import _follow, close_leader_in_path
+    from lmpc_llm_planner.planner import build_request
+
+    obs = road_obs(road, [car("slow", x_m=62.0, v_mps=6.0)], x_m=50.0, v_mps=8.0, left=True)
+    scene = build_scene(obs, lookahead_m=60.0, max_agents=20)
+    inp = rule_inputs(planner_config.rules, build_request(
+        scene, config=planner_config, space=mpc_config))
+    labels = [c.label for c in scene.ego_candidates]
+    found = {}
+    for label in ("change to the right lane", "continue in lane"):
+        plan = start_plan(inp)
+        plan.ego_index = labels.index(label)
+        found[label] = close_leader_in_path(inp, plan)
+    assert found["continue in lane"] is None
+    leader = found["change to the right lane"]
+    assert leader is not None and leader.id == "slow"
+    plan = start_plan(inp)
+    plan.ego_index = labels.index("change to the right lane")
+    _follow(inp, plan, leader)
+    assert mid(mpc_config.accel_intervals_mps2, plan.accel_index) < 0.0
+    assert plan.weights["action"] == "high" and "merge behind it" in plan.notes[-1]

@@ -65,3 +65,32 @@ def test_the_approach_slows_down_for_the_entry(entry, planner_config, mpc_config
     near, _ = ask(entry, [], planner_config, mpc_config, ego_y_m=-38.0, v_mps=12.0)
     far, _ = ask(entry, [], planner_config, mpc_config, ego_y_m=-95.0, v_mps=12.0)
     assert near < 0.0 <= far
+
+
+def test_far_out_the_ego_does_not_speed_up_where_it_could_not_slow_down_after(
+        entry, planner_config, mpc_config):
+    """No ring traffic in sight at 8 m/s: 45 m before the line the way-is-clear rule would
+    speed up towards the limit for the next 2.5 s, after which a comfortable slow-down for
+    the entry no longer fits (rab 10049, training seed: 9.3 -> 12.5 m/s, then too close
+    to stop for the ring car, committed, hit in the entry); it keeps its speed. 65 m out
+    the speed-up still leaves room and it speeds up."""
+    near, w = ask(entry, [], planner_config, mpc_config, ego_y_m=-55.0, v_mps=8.0)
+    far, _ = ask(entry, [], planner_config, mpc_config, ego_y_m=-75.0, v_mps=8.0)
+    assert near == 0.0 and "I keep my speed" in w.reasoning
+    assert w.weight_adjustment.action == "high"  # else the MPC tracks the limit anyway
+    assert far > 0.0
+
+
+def test_the_held_speed_does_not_undo_a_conservative_slow_down(
+        entry, planner_config, mpc_config):
+    accel, w = ask_conservative(entry, ego_y_m=-55.0, v_mps=11.0,
+                                planner_config=planner_config, mpc_config=mpc_config)
+    assert accel < 0.0, w.reasoning
+
+
+def ask_conservative(map_, *, ego_y_m, v_mps, planner_config, mpc_config):
+    ego = syn.ego_state(x_m=1.6, y_m=ego_y_m, yaw_rad=NORTH, v_mps=v_mps, lane_id="S_in_0") \
+        .model_copy(update={"lane_pos_m": ego_y_m + 100.0})
+    w, _ = ask_rules(syn.observation(map_, ego, []), planner_config, mpc_config,
+                     instruction="drive conservatively")
+    return accel_mid(w, mpc_config), w

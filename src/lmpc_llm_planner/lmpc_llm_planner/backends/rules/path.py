@@ -22,7 +22,7 @@ from lmpc_llm_planner.scene import AgentView
 from .emergency import brake_hard, brakes_hard
 from .intervals import accel_index, brake_index, mildest_accel, neutral, stop_index
 from .headway import wanted_gap_m
-from .plan import Plan, RuleInputs, changing_lanes
+from .plan import Plan, RuleInputs, changing_lanes, chosen_candidate
 from .scene_helpers import (
     ALONG_RAD, HARD_BRAKE_MPS2, STANDOFF_M, distance_to_path, other_lane, queued_at_junction,
     route_path,
@@ -141,7 +141,17 @@ def go_rule(inp: RuleInputs, plan: Plan) -> None:
         _follow(inp, plan, close)
         return
     style = speed_style(inp, plan)
-    if style == "aggressive" and ego.v_mps < AGGRESSIVE_SPEED_FRACTION * limit:
+    # (the conservative band below brakes only above 75 %; between 65 and 75 % its neutral
+    # bias at "normal" lets the MPC speed up like any other: rab 10049 conservative)
+    slows = style == "conservative" and \
+        ego.v_mps >= (CONSERVATIVE_SPEED_FRACTION + 0.1) * limit
+    if plan.hold_speed is not None and not slows:
+        # a junction rule found a speed-up unsafe: keep the speed (with the action weight
+        # "normal" the MPC would track the speed limit rather than the neutral bias)
+        plan.accel_index = neutral(inp.accel)
+        plan.weights["action"] = "high"
+        plan.notes.append(plan.hold_speed)
+    elif style == "aggressive" and ego.v_mps < AGGRESSIVE_SPEED_FRACTION * limit:
         plan.accel_index = accel_index(inp.accel, AGGRESSIVE_ACCEL_MPS2)
         plan.notes.append(f"The way is clear and the user is in a hurry; I speed up "
                           f"briskly towards the {limit:.1f} m/s limit.")
@@ -276,6 +286,14 @@ def _follow(inp: RuleInputs, plan: Plan, close: AgentView) -> None:
         plan.weights["action"] = "high"
         plan.notes.append(f"{close.id} stands {close.kin.gap_m:.0f} m ahead in my "
                           f"path; I stop about {STANDOFF_M:.0f} m short of it.")
+    elif other_lane(inp.scene, close):
+        # ahead in the lane the path merges into: the MPC's reference joins that lane
+        # only later, so it would not follow the car yet; let it draw ahead (as the lane
+        # rule's wait for a gap does) and merge behind it
+        plan.accel_index = brake_index(accel, 1.0, False)
+        plan.weights["action"] = "high"
+        plan.notes.append(f"{close.id} is ahead in the lane I merge into; I ease off to "
+                          "merge behind it.")
     else:
         plan.accel_index = neutral(accel)
         if not plan.notes:
@@ -289,6 +307,8 @@ def close_leader_in_path(inp: RuleInputs, plan: Plan) -> Optional[AgentView]:
     scene = inp.scene
     ego = scene.obs.ego
     path = route_path(scene, plan.ego_index)
+    merge_lanes = set(chosen_candidate(scene, plan).lane_ids) if scene.ego_candidates \
+        else set()
     best: Optional[AgentView] = None
     for v in scene.agents:
         k = v.kin
@@ -299,8 +319,11 @@ def close_leader_in_path(inp: RuleInputs, plan: Plan) -> Optional[AgentView]:
         reach_m = max(15.0, 2.0 * ego.v_mps, STANDOFF_M + 15.0 if standing else 0.0)
         if k.gap_m > reach_m or v.agent.v_mps > ego.v_mps + 1.0:
             continue
-        if other_lane(scene, v):
-            continue  # e.g. a standing car the ego is steering round in the next lane
+        if other_lane(scene, v) and v.agent.lane_id not in merge_lanes:
+            # e.g. a standing car the ego is steering round in the next lane; but not a
+            # car in the lane the chosen path merges into (lane seed 10014, training,
+            # aggressive: sped up past one to merge in front of it, and hit it)
+            continue
         if path is not None:
             corridor = 0.5 * (ego.width_m + v.agent.width_m) + inp.cfg.path_corridor_m
             if distance_to_path(path, v.agent.x_m, v.agent.y_m) > corridor:

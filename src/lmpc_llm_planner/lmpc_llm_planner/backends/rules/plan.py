@@ -6,6 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Optional
 
+from lmpc_mpc.reference import Candidate
+
 from lmpc_llm_planner.config import RulesConfig
 from lmpc_llm_planner.scene import AgentView, Scene
 
@@ -42,6 +44,9 @@ class Plan:
     steer_index: int = 0
     speed_set: bool = False
     """A rule chose the accel interval (the default "go" must not override it)."""
+    hold_speed: Optional[str] = None
+    """A rule found speeding up unsafe here (the reason, for the reasoning): the default
+    "go" keeps the speed instead of speeding up; it may still slow down."""
     weights: dict[str, str] = field(
         default_factory=lambda: {
             "tracking": "normal", "action": "normal", "smoothness": "normal", "safety": "normal",
@@ -58,6 +63,12 @@ class Plan:
 def guidance(plan: Plan) -> dict[str, int]:
     """The answer's ``action_guidance`` object."""
     return {"accel_interval": plan.accel_index, "steer_interval": plan.steer_index}
+
+
+def chosen_candidate(scene: Scene, plan: Plan) -> Candidate:
+    """The ego candidate the plan follows (the lane rule's, else the route candidate)."""
+    i = scene.route_candidate_id if plan.ego_index is None else plan.ego_index
+    return scene.ego_candidates[i]
 
 
 def changing_lanes(scene: Scene, plan: Plan) -> bool:

@@ -15,6 +15,7 @@ from typing import Mapping, Optional
 
 from lmpc_msgs_py.messages import Lane
 
+from lmpc_llm_planner.config import RulesConfig
 from lmpc_llm_planner.route import Maneuver, next_maneuver
 
 from .intervals import neutral, required_decel, stop_index
@@ -99,10 +100,41 @@ def _enter(inp: RuleInputs, plan: Plan, man: Maneuver, conflicts: list[Conflict]
         # decision is still possible (slowing from 70 m out cost seconds)
         v, v_turn = ego.v_mps, cfg.approach_turn_speed_mps
         d = man.dist_to_stop_line_m - half_len
-        if v <= v_turn or d - v * cfg.replan_s <= \
-                (v * v - v_turn * v_turn) / (2.0 * cfg.commit_decel_mps2) + GO_ZONE_M:
+        if v <= v_turn or not _can_slow_later(cfg, v, d):
             approach_turn(inp, plan, man, v)
+        else:
+            _hold_unless_room_to_speed_up(inp, plan, man, v, d)
     return "go"
+
+
+def _can_slow(cfg: RulesConfig, v_mps: float, d_m: float) -> bool:
+    """At ``v_mps``, ``d_m`` before the yield line, the ego can slow to the turn speed
+    comfortably (``commit_decel_mps2``) and short of the go zone."""
+    v_turn = cfg.approach_turn_speed_mps
+    return d_m > (v_mps * v_mps - v_turn * v_turn) / (2.0 * cfg.commit_decel_mps2) + GO_ZONE_M
+
+
+def _can_slow_later(cfg: RulesConfig, v_mps: float, d_m: float) -> bool:
+    """The same after ``replan_s`` more at ``v_mps`` (the next decision)."""
+    return _can_slow(cfg, v_mps, d_m - v_mps * cfg.replan_s)
+
+
+def _hold_unless_room_to_speed_up(inp: RuleInputs, plan: Plan, man: Maneuver, v_mps: float,
+                                  d_m: float) -> None:
+    """Far from the yield line: the way-is-clear rule would speed up towards the limit,
+    and that speed-up lasts until the next decision. Where the ego could no longer slow
+    comfortably after it (checked as if it accelerated at ``turn_accel_mps2`` for
+    ``replan_s``), the go rule keeps the speed instead (``Plan.hold_speed``): rab seed
+    10049 (training) sped up from 9.3 to 12.5 m/s 50 m out, was then too close to stop
+    for the ring car it had not seen yet, committed, and was hit in the entry."""
+    cfg = inp.cfg
+    approach = inp.scene.lanes.get(man.approach_lane_id)
+    limit = approach.speed_limit_mps if approach is not None else v_mps
+    v_up = min(max(limit, v_mps), v_mps + cfg.turn_accel_mps2 * cfg.replan_s)
+    d_up = d_m - 0.5 * (v_mps + v_up) * cfg.replan_s
+    if v_up > v_mps and not _can_slow(cfg, v_up, d_up):
+        plan.hold_speed = ("I keep my speed: after speeding up I could not slow down "
+                           "comfortably for the roundabout.")
 
 
 def _give_way(inp: RuleInputs, plan: Plan, man: Maneuver, unsafe: list[Conflict], *,
