@@ -33,6 +33,12 @@ from lmpc_mpc.mirrors import MirrorLine, agent_lines, candidate_lines
 PAIR_WAIT_S = 0.2
 """Wall time to wait for agents / signals of the ego state's stamp before using the newest."""
 BARRIER_WAIT_S = 1.0
+UNMATCHED_WAIT_S = 10.0
+"""Sync barrier: how long to wait for a required decision while no decision writer has
+matched this node's reader yet. Such a decision cannot have arrived: the planner published
+it (transient local) before DDS discovery had matched the two, and it is delivered on the
+match, which took over 1 s on a loaded CI machine (the first two decisions of an episode
+arrived together at ~5 s of sim and were both too late: test_graph_instruction failed)."""
 CLOCK_WATCHDOG_S = 2.0
 TICK_S = 0.01
 HOLD_STALE_S = 0.35
@@ -94,8 +100,8 @@ class MpcNode(LmpcNode):
         self.json_subscription(EgoState, topics.EGO_STATE, self._on_ego)
         self.json_subscription(AgentArray, topics.AGENTS, self._on_agents)
         self.json_subscription(SignalStates, topics.SIGNALS, self._on_signals)
-        self.json_subscription(Decision, topics.DECISION, self._on_decision,
-                               lmpc_qos.DECISION_IN)
+        self._decision_sub = self.json_subscription(Decision, topics.DECISION,
+                                                    self._on_decision, lmpc_qos.DECISION_IN)
         self._holds: dict[float, AgentArray] = {}
         if self.ego_id:  # a multi-ego graph: the coordination's hold point (issue 18)
             self.json_subscription(AgentArray, topics.COORD_HOLD, self._on_hold)
@@ -207,7 +213,8 @@ class MpcNode(LmpcNode):
             need = ego.required_decision_id
             if need is not None and need not in self._decision_ids \
                     and need not in self._barrier_given_up:
-                if waited < BARRIER_WAIT_S:
+                matched = self._decision_sub.get_publisher_count() > 0
+                if waited < (BARRIER_WAIT_S if matched else UNMATCHED_WAIT_S):
                     return
                 # once per decision: the next steps name it too (until the planner's next
                 # one), and waiting again on each would cost every step BARRIER_WAIT_S
@@ -216,8 +223,8 @@ class MpcNode(LmpcNode):
                 if len(self._barrier_given_up) > 64:
                     del self._barrier_given_up[next(iter(self._barrier_given_up))]
                 self.log_event("barrier", f"decision {need!r} not received within "
-                               f"{BARRIER_WAIT_S:.0f} s; computing without it (not waiting "
-                               "for it again)")
+                               f"{waited:.0f} s ({'a' if matched else 'no'} decision writer "
+                               "matched); computing without it (not waiting for it again)")
             if agents is None:
                 agents = self._newest(self._agents, ego.stamp_s)
                 self.counters["unpaired_agents"] += 1
