@@ -47,6 +47,7 @@ from lmpc_mpc.reference import (
     sharp_turn_path,
     timed_reference,
 )
+from lmpc_mpc.lead_in import lead_in, turned_away
 from lmpc_mpc.route_guard import RouteLeave, leaves_route
 from lmpc_mpc.solver import MpcProblem, MpcSolver, Obstacle
 from lmpc_mpc.crossing import (
@@ -121,10 +122,6 @@ _REENTRY_AHEAD_M = 12.0
 _REENTRY_RAD = math.radians(30.0)
 """The path point this far ahead lies more than this off the ego's heading: the decision's
 steer bias is replaced by the path's own (``MpcController._problem``)."""
-_LEAD_IN_OFF_RAD = math.radians(60.0)
-_LEAD_IN_M = 6.0
-_LEAD_IN_RADIUS_M = 6.0
-_TURNED_AWAY_M = 2.0
 _SHARP_ON_ROUTE_M = 3.0
 """The sharp-turn reference is for an ego on its route: farther off, the usual one."""
 
@@ -163,44 +160,6 @@ def rebased_control_points(control_points: Sequence[Sequence[float]], x_m: float
     if i == 0 or len(cps) - i < 2:
         return cps
     return np.vstack([here, cps[i:]])
-
-
-def _lead_in(path: np.ndarray, x_m: float, y_m: float, yaw_rad: float) -> np.ndarray:
-    """The path, started along the ego's heading when its first metres leave the ego
-    more than 60 degrees off it (the ego stopped turned away from its path, e.g. after
-    dodging inside a junction): the car cannot reverse or turn on the spot, and with a
-    reference pointing sideways or back the MPC stayed at rest (a local minimum; usi
-    seed 23). The lead-in is an arc of ``_LEAD_IN_RADIUS_M`` (steer ~0.42 rad) from the
-    ego's heading round to the bearing of the path point ``_LEAD_IN_M`` ahead, then the
-    path from that point on (an approximation of a kinematically feasible rejoin)."""
-    seg = np.hypot(*np.diff(path, axis=0).T)
-    cum = np.concatenate([[0.0], np.cumsum(seg)])
-    if cum[-1] < 2.0 * _LEAD_IN_M:
-        return path
-    k = int(np.searchsorted(cum, _LEAD_IN_M))
-    d = path[k] - np.array([x_m, y_m])
-    turn = math.remainder(math.atan2(d[1], d[0]) - yaw_rad, 2.0 * math.pi)
-    if abs(turn) <= _LEAD_IN_OFF_RAD:
-        return path
-    side = 1.0 if turn > 0.0 else -1.0
-    r = _LEAD_IN_RADIUS_M
-    phi = np.linspace(0.0, abs(turn), max(3, int(abs(turn) * r / 0.5) + 1))
-    cx = x_m - side * r * math.sin(yaw_rad)
-    cy = y_m + side * r * math.cos(yaw_rad)
-    arc = np.column_stack([cx + side * r * np.sin(yaw_rad + side * phi),
-                           cy - side * r * np.cos(yaw_rad + side * phi)])
-    return np.vstack([arc, path[k + 1:]]) if k + 1 < len(path) else arc
-
-
-def _turned_away(path: np.ndarray, x_m: float, y_m: float, yaw_rad: float) -> bool:
-    """The path's start (its point ``_TURNED_AWAY_M`` ahead) lies more than
-    ``_LEAD_IN_OFF_RAD`` off the ego's heading: the ego stands turned away from its path,
-    not merely at the start of a tight turn (where the point 6 m ahead may be)."""
-    cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
-    k = min(int(np.searchsorted(cum, _TURNED_AWAY_M)), len(path) - 1)
-    d = path[k] - np.array([x_m, y_m])
-    return abs(math.remainder(math.atan2(d[1], d[0]) - yaw_rad, 2.0 * math.pi)) \
-        > _LEAD_IN_OFF_RAD
 
 
 class MpcController(CrossingRules):
@@ -472,8 +431,8 @@ class MpcController(CrossingRules):
         else:
             weights = cfg.decision_space.weights_for(None)
             bias = (0.0, 0.0)
-        if sharp is None or _turned_away(path, ego.x_m, ego.y_m, ego.yaw_rad):
-            path = _lead_in(path, ego.x_m, ego.y_m, ego.yaw_rad)
+        if sharp is None or turned_away(path, ego.x_m, ego.y_m, ego.yaw_rad):
+            path = lead_in(path, ego.x_m, ego.y_m, ego.yaw_rad)
         v_limit = veh.max_speed_mps
         lane = lane_at(obs.map, x_m=ego.x_m, y_m=ego.y_m, yaw_rad=ego.yaw_rad,
                        lane_id=ego.lane_id)
@@ -618,7 +577,7 @@ class MpcController(CrossingRules):
         degrees off the heading mid-turn, the lead-in replaced the rest of the turn by a
         6 m arc: the car ran wide onto the next road. On the centreline the reference's
         curvature speed cap brakes for the real radius, and the lead-in is only for an
-        ego turned away from the path's start (``_turned_away``). A decision's candidate
+        ego turned away from the path's start (``lead_in.turned_away``). A decision's candidate
         along the route is thereby followed through its lanes; its weights and speed
         guidance stay, and a lane change it asks for waits until past the turn."""
         route = route_path(obs.map)

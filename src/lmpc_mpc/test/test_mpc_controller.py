@@ -218,7 +218,7 @@ def test_route_reference_off_path_points_along_the_route(solver: MpcSolver) -> N
 
 
 def test_facing_away_from_the_path_gets_a_lead_in() -> None:
-    from lmpc_mpc.controller import _lead_in
+    from lmpc_mpc.lead_in import lead_in as _lead_in
     path = np.column_stack([np.zeros(50), np.linspace(0.0, 49.0, 50)])  # north
     out = _lead_in(path, 0.0, 0.0, -math.pi / 2)  # ego faces south
     d = out[2] - out[0]
