@@ -102,16 +102,14 @@ def test_planners_reach_the_target_on_the_route(tmp_path: Path,
         assert row["off_route"] == "0" and row["collision"] == "0"
 
 
-_BASELINE_BUSY_OPEN = {("inner", False, False)}
-"""The baseline with background traffic on the right-hand inner net with the straight
-entry: a collision on main (24.7 s, bg11; it had been a timeout). Cause (issue 21 item 3,
-docs/lmpc_mpc.md, "Stops across two lanes"): yielding to the traffic of the junction after
-the 8.8 m stub, the crossing rule stopped the ego half-way through its lane change, its
-tail in the stub's outer lane; it waited there ~15 s, and when it crept off, a car coming
-along the outer lane (SUMO keeps the ego on the inner lane) ran into its tail. A rule that
-keeps those stops in one lane fixed this net but made lmpc-rules collide on the sibling
-net (branch i21b, not merged). Open; marked, not hidden. The other three inner nets, off
-route before, reach since the third round of issue 23 (2026-12-03)."""
+_BASELINE_BUSY_OPEN: set[tuple[str, bool, bool]] = set()
+"""Empty since the ego's shadow (2026-12-04, ``lmpc_bridge.shadow``, docs/lmpc_mpc.md "Stops
+across two lanes"): the baseline with background traffic on the right-hand inner net with
+the straight entry had collided (24.7 s, bg11): yielding to the traffic of the junction
+after the 8.8 m stub, the crossing rule stopped the ego half-way through its lane change,
+its tail in the stub's outer lane, and a car coming along that lane (SUMO kept the ego on
+the inner one) ran into it. Now SUMO's drivers see the tail (a standing shadow vehicle) and
+stop behind it; the baseline reaches."""
 
 
 @pytest.mark.parametrize("case", [

@@ -528,6 +528,8 @@ class BridgeNode(BridgeBase):
             "late_controls": self.inputs.stats.late_controls,
             # vehicles SUMO inserted onto the ego's body, held back (lmpc_bridge.insertion)
             "held_insertions": record.held_insertions,
+            # the ego stood across two lanes: its shadow on the second (lmpc_bridge.shadow)
+            "shadows": record.shadows,
             "control_modes": self.inputs.stats.control_modes,
             "mpc_solve_ms": _percentiles(self.inputs.stats.solve_ms),
             "control_latency_ms": _wait_percentiles(self.stage_times.summary()),

@@ -16,6 +16,7 @@ import traci.constants as tc
 from lmpc_bridge.dynamics import wrap_angle_rad
 from lmpc_bridge.geometry import OrientedBox, box_gap_m
 from lmpc_bridge.record import NearbyVehicle
+from lmpc_bridge.shadow import shadow_id
 
 MAX_AGENT_ACCEL_MPS2 = 15.0
 AFFECTED_RADIUS_M = 50.0
@@ -149,7 +150,7 @@ def affected_vehicles(traci: Any, ego_id: str, seen: Mapping[str, Seen],
     for vid, gap in gaps.items():
         if vid in out or gap > AFFECTED_RADIUS_M or seen[vid].kind == "pedestrian":
             continue
-        if leader_of(traci, vid, AFFECTED_RADIUS_M) == ego_id:
+        if leader_of(traci, vid, AFFECTED_RADIUS_M) in (ego_id, shadow_id(ego_id)):
             out[vid] = "leader"
     try:
         foes = traci.vehicle.getJunctionFoes(ego_id, AFFECTED_RADIUS_M) if foes_query else ()

@@ -83,6 +83,11 @@ class EpisodeRecord(_Frozen):
     their spot was clear (``lmpc_bridge.insertion``; one per hold)."""
     insertion_holds: tuple[str, ...] = ()
     """One line per hold and per release (time, vehicle, place)."""
+    shadows: int = 0
+    """How often the ego stood across two lanes and the bridge put its shadow (a standing
+    vehicle SUMO's drivers see) on the second lane (``lmpc_bridge.shadow``)."""
+    shadow_log: tuple[str, ...] = ()
+    """One line per placement and removal of the shadow."""
     steps: tuple[StepRecord, ...] = ()
 
     def to_json(self) -> dict[str, Any]:

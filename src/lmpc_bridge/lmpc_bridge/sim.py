@@ -66,6 +66,7 @@ from lmpc_bridge.participants import (
 from lmpc_bridge.record import EpisodeRecord, StepRecord
 from lmpc_bridge.route_watch import RouteWatch
 from lmpc_bridge.scenarios import Scene, build_scene
+from lmpc_bridge.shadow import EgoShadow, LaneShape, lane_shapes
 
 DT_S = 0.1
 EGO_ID = "ego"
@@ -98,6 +99,8 @@ class SimState:
     max_time_s: float
     guard: InsertionGuard | None = None
     """The held vehicles (not in SUMO's state) and the hold count at that step."""
+    shadow: EgoShadow | None = None
+    """The ego's shadow (its vehicle is in SUMO's state; where it stands is here)."""
 
 
 class SimError(RuntimeError):
@@ -156,6 +159,8 @@ class SumoSim:
         self._reached_at_s: float | None = None
         self._max_time_s = 200.0
         self._guard = InsertionGuard()
+        self._shadow = EgoShadow(EGO_ID, self._vehicle.length_m)
+        self._lane_shapes: dict[str, LaneShape] = {}
         self._foes_query_ok = True
         self._route_edges: set[str] | None = None
         self._tls_links: dict[tuple[str, int | None], list[tuple[Any, Any]]] | None = None
@@ -257,6 +262,7 @@ class SumoSim:
         self._subscribe()
         net = read_net(scene.net_file)
         self._map, self._route = build_map(scene, net=net)
+        self._lane_shapes = lane_shapes(self._map.lanes)
         self._watch = RouteWatch.of_net(net, scene.ego_route_edges)
         self._foes_query_ok = foes_query_ok(net, scene.ego_route_edges)
         fx, fy = t.vehicle.getPosition(EGO_ID)
@@ -303,7 +309,7 @@ class SumoSim:
             signals=self._signals, steps=tuple(self._steps),
             outcome=self._outcome, detail=self._detail, collided_with=self._collided_with,
             reached_at_s=self._reached_at_s, max_time_s=self._max_time_s,
-            guard=self._guard.copy())
+            guard=self._guard.copy(), shadow=self._shadow.copy())
 
     def _correct_rng_counts(self, path: Path) -> None:
         """The saved counts of the static generators as draws since this simulation's
@@ -362,6 +368,9 @@ class SumoSim:
         self._collided_with, self._reached_at_s = state.collided_with, state.reached_at_s
         self._max_time_s = state.max_time_s
         self._guard = state.guard.copy() if state.guard is not None else InsertionGuard()
+        self._shadow = (state.shadow.copy() if state.shadow is not None
+                        else EgoShadow(EGO_ID, self._vehicle.length_m))
+        self._shadow.restore(t)
 
     def _check_start_free(self, scene: Scene) -> None:
         """After the warm-up: SimError when a vehicle occupies the ego's start slot."""
@@ -434,8 +443,8 @@ class SumoSim:
         for vid, vals in results.items():
             if tc.VAR_POSITION not in vals:
                 continue  # e.g. a person type's entry (libsumo merges domains)
-            if vid in self._guard.held:
-                continue  # inserted into the ego and taken out again after the step
+            if vid in self._guard.held or vid == self._shadow.vehicle_id:
+                continue  # inserted into the ego and taken out again; the ego's own shadow
             if vid == EGO_ID:
                 lane = vals.get(tc.VAR_LANE_ID) or None
                 self._ego_lane = lane
@@ -568,8 +577,12 @@ class SumoSim:
                                        self._vehicle.width_m, p.v_mps)}
             if self._guard.held:
                 self._guard.release_clear(t, guard, now_s=now)
+            self._shadow.update(t, OrientedBox(p.x_m, p.y_m, p.yaw_rad, self._vehicle.length_m,
+                                               self._vehicle.width_m), p.v_mps,
+                                self._ego_lane, self._lane_shapes, now_s=now)
             t.simulationStep()
-            self._guard.hold_overlapping(t, guard, now_s=now, skip=(EGO_ID,))
+            self._guard.hold_overlapping(t, guard, now_s=now,
+                                         skip=(EGO_ID, self._shadow.vehicle_id))
         except Exception as exc:  # noqa: BLE001 - SUMO errors end the episode, not the process
             self._step_index += 1
             self._finish("error", f"SUMO failed: {exc}")
@@ -674,7 +687,8 @@ class SumoSim:
         lines = traffic.window_warnings(declared, window)
         # a held vehicle counts once in SUMO's insertions per hold (it was inserted, then
         # taken out): the ego's insertion and the holds are not traffic that entered
-        count = (traffic.read_entry_count(self._traci, ego_inserted=1 + self._guard.count)
+        count = (traffic.read_entry_count(self._traci, ego_inserted=1 + self._guard.count
+                                          + self._shadow.placements)
                  if self._started else None)
         if count is not None and not lines:
             lines += traffic.entry_warnings(declared, window, count)
@@ -694,5 +708,6 @@ class SumoSim:
             target_radius_m=scene.target.radius_m, outcome=self._outcome,
             reached_at_s=self._reached_at_s, collided_with=self._collided_with,
             held_insertions=self._guard.count, insertion_holds=self._guard.lines(),
+            shadows=self._shadow.placements, shadow_log=tuple(self._shadow.log),
             steps=tuple(self._steps),
         )

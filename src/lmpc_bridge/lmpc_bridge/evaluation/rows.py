@@ -16,13 +16,15 @@ COLUMNS = ("family", "seed", "method", "outcome", "collision", "fail", "off_rout
            "pen_acc", "pen_dist", "overall_cost", "decisions", "fallbacks", "steps",
            "solve_ms_median", "solve_ms_p99", "compute_ms_median", "compute_ms_p99", "wall_s",
            "route_overrides", "latency_s", "emergency_latency_s", "stale_steps",
-           "stale_agent_steps", "held_insertions", "detail")
+           "stale_agent_steps", "held_insertions", "shadows", "detail")
 """``latency_s`` / ``emergency_latency_s``: the simulated decision latencies of the run
 (empty: the backend's own, e.g. 0 for rules; always empty for ``mpc``); ``stale_steps`` /
 ``stale_agent_steps``: steps on which the MPC found the decision in force stale for some
 agent, and agent-steps it fell back for (``MpcController`` stats ``stale_*``);
 ``held_insertions``: vehicles SUMO inserted onto the ego's body that the bridge held back
-until their spot was clear (``lmpc_bridge.insertion``, one per hold)."""
+until their spot was clear (``lmpc_bridge.insertion``, one per hold); ``shadows``: how
+often the ego stood across two lanes and the bridge put its shadow on the second one
+(``lmpc_bridge.shadow``)."""
 
 BASELINE = "mpc"
 """The method without a planner: no latency cells, the reference of ``oc_change_vs_mpc``."""
@@ -70,17 +72,18 @@ def error_row(method: str, family: str, seed: int, detail: str,
     row: dict[str, Any] = {c: math.nan for c in COLUMNS}
     row.update(family=family, seed=seed, method=method, outcome="error", collision=0, fail=1,
                off_route=0, route_overrides=0, decisions=0, fallbacks=0, steps=0, wall_s=0.0,
-               detail=detail, stale_steps=0, stale_agent_steps=0, held_insertions=0,
+               detail=detail, stale_steps=0, stale_agent_steps=0, held_insertions=0, shadows=0,
                **latency_cells(method, latency))
     return row
 
 
 _INT_COLUMNS = ("seed", "collision", "fail", "off_route", "decisions", "fallbacks", "steps",
-                "route_overrides", "stale_steps", "stale_agent_steps", "held_insertions")
+                "route_overrides", "stale_steps", "stale_agent_steps", "held_insertions",
+                "shadows")
 _TEXT_COLUMNS = ("family", "method", "outcome", "detail", "latency_s", "emergency_latency_s")
-_ADDED_COLUMNS = {"held_insertions": "0"}
+_ADDED_COLUMNS = {"held_insertions": "0", "shadows": "0"}
 """Columns added after files were stored (``--replay-from`` of an older run): read as
-this value where a file lacks them (no vehicle was held: the guard did not exist)."""
+this value where a file lacks them (the guard and the shadow did not exist)."""
 
 
 def read_rows(path: Path, jobs: set[tuple[str, str, int]], *,

@@ -182,6 +182,7 @@ def _run_scene(method: str, family: str, seed: int, settings: RunSettings, build
         "wall_s": round(time.perf_counter() - started, 2),
         **latency_cells(method, settings.latency),
         "held_insertions": result.record.held_insertions,
+        "shadows": result.record.shadows,
         "detail": detail,
         # the style and situation figures (lmpc_bridge.evaluation.style / .situations);
         # not columns of results.csv

@@ -1,0 +1,148 @@
+"""The ego's shadow (issue 21, ``lmpc_bridge.shadow``): SUMO's drivers see an ego that
+stands across two lanes.
+
+The constructed case: a straight road of two 3.2 m lanes; the ego starts standing on lane 0
+at 100 m, steers half-way into lane 1 and stops there (SUMO maps it to lane 1), and a car
+``back`` comes along lane 0 at 13 m/s (lane changes off). Without the shadow ``back`` does
+not see the ego's tail in its lane and runs into it (collision at 6.7 s); with it ``back``
+stops behind the shadow and nothing collides. The shadow is no agent of the observation.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import libsumo
+import pytest
+
+from lmpc_msgs_py.messages import Control
+
+from lmpc_bridge import shadow as shadow_mod
+from lmpc_bridge.geometry import OrientedBox
+from lmpc_bridge.scenarios.base import Scene, TargetSpec, run_netconvert
+from lmpc_bridge.scenarios.common import (driver_vtype, vehicle_line, write_plain_net,
+                                          write_routes)
+from lmpc_bridge.shadow import LaneShape, intrusion, shadow_id
+from lmpc_bridge.sim import EGO_ID, SumoSim
+
+LANE_W_M = 3.2
+
+
+def _scene(work: Path) -> Scene:
+    nod, edg = write_plain_net(
+        work, "sh", nodes=[dict(id="A", x=0.0, y=0.0), dict(id="B", x=400.0, y=0.0)],
+        edges=[dict(id="AB", **{"from": "A", "to": "B"}, numLanes=2, speed=13.89,
+                    width=LANE_W_M)])
+    net = work / "sh.net.xml"
+    run_netconvert(nodes_file=nod, edges_file=edg, net_file=net)
+    routes = work / "sh.rou.xml"
+    write_routes(routes, vtypes=[driver_vtype("car", aggressiveness=0.0)],
+                 routes={"r_ego": ["AB"], "r_bg": ["AB"]},
+                 vehicles=[(0.0, vehicle_line("back", type_id="car", route="r_bg", depart_s=0.0,
+                                              lane=0, pos_m=10.0, speed_mps=13.0,
+                                              speed_factor=1.0))])
+    return Scene(family="shadow", seed=0, net_file=net, route_file=routes,
+                 additional_files=(), ego_route_edges=("AB",), ego_depart_lane=0,
+                 ego_depart_pos_m=100.0, ego_depart_speed_mps=0.0,
+                 target=TargetSpec(edge_id="AB", lane_ids=("AB_0", "AB_1"), lane_pos_m=380.0,
+                                   center=(380.0, -1.6), radius_m=5.0),
+                 max_time_s=40.0)
+
+
+def _control(sim: SumoSim) -> Control:
+    """Half-way into lane 1, stop there until 12 s, then on (straightening out)."""
+    t = sim.time_s
+    accel, steer = ((1.5, 0.3) if t < 2.0 else (0.0, -0.2) if t < 2.6 else
+                    (-4.0, 0.0) if t < 12.0 else (2.0, -0.1))
+    return Control(stamp_s=t, seq=sim.step_index, accel_mps2=accel, steer_rad=steer,
+                   mode="baseline", solver_status="test", solve_time_ms=0.0)
+
+
+def _run(sim: SumoSim, until_s: float) -> None:
+    while sim.outcome == "running" and sim.time_s < until_s - 1e-9:
+        if "back" in libsumo.vehicle.getIDList():
+            libsumo.vehicle.setLaneChangeMode("back", 0)  # it stays in the ego's tail lane
+        sim.step(_control(sim))
+
+
+def _lanes() -> dict[str, LaneShape]:
+    def lane(i: int, internal: bool = False) -> LaneShape:
+        y = -LANE_W_M / 2.0 - (1 - i) * LANE_W_M
+        return LaneShape(id=f"e_{i}", edge_id="e", index=i, centerline=((0.0, y), (100.0, y)),
+                         width_m=LANE_W_M, length_m=100.0,
+                         neighbours=(f"e_{1 - i}",), internal=internal)
+    return {"e_0": lane(0), "e_1": lane(1)}
+
+
+def test_intrusion_needs_the_body_past_the_neighbour_lane_border() -> None:
+    lanes = _lanes()
+    y0 = -LANE_W_M * 1.5  # lane 0's centre; the border with lane 1 at -3.2
+    # centred in its lane, straight: nothing in lane 1
+    assert intrusion(OrientedBox(50.0, y0, 0.0, 4.5, 1.8), "e_0", lanes) is None
+    # 0.2 m past the border (< MIN_INTRUSION_M): still nothing
+    y = -LANE_W_M - 0.9 + 0.2
+    assert intrusion(OrientedBox(50.0, y, 0.0, 4.5, 1.8), "e_0", lanes) is None
+    # 0.5 m past it: lane 1, the front where the body ends along it
+    y = -LANE_W_M - 0.9 + 0.5
+    lane_id, front = intrusion(OrientedBox(50.0, y, 0.0, 4.5, 1.8), "e_0", lanes) or ("", 0.0)
+    assert lane_id == "e_1" and front == pytest.approx(52.25)
+    # mapped to lane 1 with its tail in lane 0 (yawed): lane 0, where the tail ends
+    got = intrusion(OrientedBox(50.0, -2.6, 0.35, 4.5, 1.8), "e_1", lanes)
+    assert got is not None and got[0] == "e_0" and 46.0 < got[1] < 50.0  # the tail's front
+    # unknown or internal lanes: no shadow
+    assert intrusion(OrientedBox(50.0, -2.6, 0.35, 4.5, 1.8), None, lanes) is None
+    lanes["e_1"] = LaneShape(**{**lanes["e_1"].__dict__, "internal": True})
+    assert intrusion(OrientedBox(50.0, -2.6, 0.35, 4.5, 1.8), "e_1", lanes) is None
+
+
+def test_a_car_stops_behind_an_ego_standing_across_two_lanes(tmp_path: Path) -> None:
+    sim = SumoSim(work_dir=tmp_path)
+    try:
+        sim.reset_scene(_scene(tmp_path))
+        _run(sim, 11.5)
+        assert sim.outcome == "running", sim.record().collided_with
+        assert sim._ego_lane == "AB_1"  # SUMO has the ego on lane 1 ...
+        sid = shadow_id(EGO_ID)
+        assert libsumo.vehicle.getLaneID(sid) == "AB_0"  # ... and its shadow on lane 0
+        assert libsumo.vehicle.getLeader("back", 50.0)[0] == sid
+        assert libsumo.vehicle.getSpeed("back") < 1.0
+        ids = {a.id for a in sim.observe().agents.agents}
+        assert "back" in ids and sid not in ids
+        _run(sim, 18.0)  # the ego drives on: the shadow is taken out
+        assert sid not in libsumo.vehicle.getIDList()
+        record = sim.record()
+        assert record.shadows == 1 and len(record.shadow_log) == 2
+        assert record.collided_with is None
+    finally:
+        sim.close()
+
+
+def test_without_the_shadow_the_car_runs_into_the_ego(tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """The case is a real one: no shadow (never slow enough for it), a collision."""
+    monkeypatch.setattr(shadow_mod, "MAX_SPEED_MPS", -1.0)
+    sim = SumoSim(work_dir=tmp_path)
+    try:
+        sim.reset_scene(_scene(tmp_path))
+        _run(sim, 9.0)
+        assert sim.outcome == "collision" and sim.record().collided_with == "back"
+        assert sim.record().shadows == 0
+    finally:
+        sim.close()
+
+
+def test_a_saved_state_with_the_shadow_continues_identically(tmp_path: Path) -> None:
+    sim = SumoSim(work_dir=tmp_path)
+    try:
+        sim.reset_scene(_scene(tmp_path))
+        _run(sim, 5.0)
+        assert sim._shadow.lane_id == "AB_0"
+        state = sim.save_state(tmp_path / "at5.xml")
+        _run(sim, 16.0)
+        first = sim.record()
+        sim.load_state(state)
+        _run(sim, 16.0)
+        second = sim.record()
+        assert first.shadows == 1 and first.shadow_log == second.shadow_log
+        assert first.model_dump() == second.model_dump()
+    finally:
+        sim.close()
