@@ -57,6 +57,7 @@ from lmpc_bridge import sumo_rng
 from lmpc_bridge.multi_scene import EgoSpec, ego_scene, ego_specs
 from lmpc_bridge.record import EpisodeRecord, StepRecord
 from lmpc_bridge.scenarios import Scene, SceneError, build_scene
+from lmpc_bridge.shadow import EgoShadow, LaneShape, lane_shapes, shadow_id
 from lmpc_bridge.participants import (
     MAX_AGENT_ACCEL_MPS2,
     PERSON_VARS,
@@ -100,6 +101,9 @@ class EgoRun:
     reached_at_s: Optional[float] = None
     foes_query: bool = True
     """Ask SUMO for the ego's junction foes (``participants.foes_query_ok``)."""
+    shadow: Optional[EgoShadow] = None
+    """Its body on a second lane while it stands across two (``lmpc_bridge.shadow``)."""
+    lane_shapes: dict[str, LaneShape] = field(default_factory=dict)
 
     @property
     def ego_id(self) -> str:
@@ -190,7 +194,9 @@ class MultiSumoSim:
                            yaw_rad=yaw, v_mps=spec.depart_speed_mps)
             self.egos[spec.ego_id] = EgoRun(
                 spec=spec, scene=view, map=mp, route=route, pose=pose,
-                foes_query=foes_query_ok(net, spec.route_edges))
+                foes_query=foes_query_ok(net, spec.route_edges),
+                shadow=EgoShadow(spec.ego_id, self._vehicle.length_m),
+                lane_shapes=lane_shapes(mp.lanes))
             for domain in (tc.CMD_GET_VEHICLE_VARIABLE, tc.CMD_GET_PERSON_VARIABLE):
                 t.vehicle.subscribeContext(spec.ego_id, domain, self._range_m,
                                            list(VEHICLE_VARS if domain ==
@@ -242,14 +248,19 @@ class MultiSumoSim:
     def running_ids(self) -> tuple[str, ...]:
         return tuple(eid for eid, e in self.egos.items() if e.running)
 
+    @property
+    def _shadow_ids(self) -> set[str]:
+        return {shadow_id(eid) for eid in self.egos}
+
     # --- observation --------------------------------------------------------------------
     def _refresh(self, ego: EgoRun) -> None:
         t = self._traci
         results = t.vehicle.getContextSubscriptionResults(ego.ego_id) or {}
         seen: dict[str, Seen] = {}
         for vid, vals in results.items():
-            if tc.VAR_POSITION not in vals or vid in self._guard.held:
-                continue  # (held: inserted onto an ego, taken out again after the step)
+            if tc.VAR_POSITION not in vals or vid in self._guard.held \
+                    or vid in self._shadow_ids:
+                continue  # (held: inserted onto an ego, taken out again; an ego's shadow)
             if vid == ego.ego_id:
                 ego.lane = vals.get(tc.VAR_LANE_ID) or None
                 ego.lane_pos_m = float(vals.get(tc.VAR_LANEPOSITION, 0.0))
@@ -347,8 +358,16 @@ class MultiSumoSim:
         try:
             if self._guard.held:
                 self._guard.release_clear(t, guard, now_s=now)
+            for e in self.egos.values():
+                if e.running and e.shadow is not None:
+                    q = e.pose
+                    e.shadow.update(t, OrientedBox(q.x_m, q.y_m, q.yaw_rad,
+                                                   self._vehicle.length_m,
+                                                   self._vehicle.width_m),
+                                    q.v_mps, e.lane, e.lane_shapes, now_s=now)
             t.simulationStep()
-            self._guard.hold_overlapping(t, guard, now_s=now, skip=self.egos)
+            self._guard.hold_overlapping(t, guard, now_s=now,
+                                         skip={*self.egos, *self._shadow_ids})
         except Exception as exc:  # noqa: BLE001 - SUMO errors end the episode
             self._step_index += 1
             for e in self.egos.values():
@@ -434,6 +453,8 @@ class MultiSumoSim:
                 for domain in (tc.CMD_GET_VEHICLE_VARIABLE, tc.CMD_GET_PERSON_VARIABLE):
                     t.vehicle.unsubscribeContext(ego.ego_id, domain, self._range_m)
                 t.vehicle.remove(ego.ego_id)
+            if not ego.running and ego.shadow is not None and ego.shadow.lane_id is not None:
+                ego.shadow.take_out(t, self.time_s, f"{ego.ego_id} is out of the episode")
         running = [e for e in self.egos.values() if e.running]
         if not running:
             return
@@ -478,4 +499,6 @@ class MultiSumoSim:
             reached_at_s=ego.reached_at_s, collided_with=ego.collided_with,
             held_insertions=self._guard.by_ego.get(ego_id, 0),
             insertion_holds=self._guard.lines(ego_id),
+            shadows=0 if ego.shadow is None else ego.shadow.placements,
+            shadow_log=() if ego.shadow is None else tuple(ego.shadow.log),
             steps=tuple(ego.steps))

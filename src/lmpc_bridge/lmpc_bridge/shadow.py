@@ -183,6 +183,11 @@ class EgoShadow:
             traci.vehicle.setSpeedMode(self.vehicle_id, 0)
             traci.vehicle.setLaneChangeMode(self.vehicle_id, 0)
 
+    def take_out(self, traci: Any, now_s: float, why: str) -> None:
+        """Remove the shadow from the simulation (e.g. its ego left the episode)."""
+        if self.lane_id is not None:
+            self._remove(traci, now_s, why)
+
     def _remove(self, traci: Any, now_s: float, why: str) -> None:
         try:
             traci.vehicle.remove(self.vehicle_id)

@@ -48,12 +48,11 @@ def _scene(work: Path) -> Scene:
                  max_time_s=40.0)
 
 
-def _control(sim: SumoSim) -> Control:
+def _control(t: float, seq: int) -> Control:
     """Half-way into lane 1, stop there until 12 s, then on (straightening out)."""
-    t = sim.time_s
     accel, steer = ((1.5, 0.3) if t < 2.0 else (0.0, -0.2) if t < 2.6 else
                     (-4.0, 0.0) if t < 12.0 else (2.0, -0.1))
-    return Control(stamp_s=t, seq=sim.step_index, accel_mps2=accel, steer_rad=steer,
+    return Control(stamp_s=t, seq=seq, accel_mps2=accel, steer_rad=steer,
                    mode="baseline", solver_status="test", solve_time_ms=0.0)
 
 
@@ -61,7 +60,7 @@ def _run(sim: SumoSim, until_s: float) -> None:
     while sim.outcome == "running" and sim.time_s < until_s - 1e-9:
         if "back" in libsumo.vehicle.getIDList():
             libsumo.vehicle.setLaneChangeMode("back", 0)  # it stays in the ego's tail lane
-        sim.step(_control(sim))
+        sim.step(_control(sim.time_s, sim.step_index))
 
 
 def _lanes() -> dict[str, LaneShape]:
@@ -144,5 +143,44 @@ def test_a_saved_state_with_the_shadow_continues_identically(tmp_path: Path) -> 
         second = sim.record()
         assert first.shadows == 1 and first.shadow_log == second.shadow_log
         assert first.model_dump() == second.model_dump()
+    finally:
+        sim.close()
+
+
+def test_multi_ego_sim_shadows_an_ego_across_two_lanes(tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """``MultiSumoSim``: the same case with a second ego parked far ahead on lane 1; the
+    first ego's shadow stops ``back``, the second ego never sees it."""
+    import dataclasses
+    import json
+
+    from lmpc_bridge import multi_sim
+
+    base = _scene(tmp_path)
+    target = dict(edge_id="AB", lane_ids=["AB_0", "AB_1"], lane_pos_m=380.0,
+                  center=[380.0, -1.6], radius_m=5.0)
+    egos = [dict(ego_id=f"ego_{k + 1}", route_id="r_ego", route_edges=["AB"], depart_lane=lane,
+                 depart_pos_m=pos, depart_speed_mps=0.0, target=target)
+            for k, (lane, pos) in enumerate([(0, 100.0), (1, 160.0)])]
+    scene = dataclasses.replace(base, params={"egos": json.dumps(egos)})
+    monkeypatch.setattr(multi_sim, "build_scene", lambda *a, **k: scene)
+    sim = multi_sim.MultiSumoSim(work_dir=tmp_path)
+    try:
+        sim.reset("shadow", 0)
+        while sim.time_s < 11.5 - 1e-9:
+            if "back" in libsumo.vehicle.getIDList():
+                libsumo.vehicle.setLaneChangeMode("back", 0)
+            t = sim.time_s
+            first = _control(t, sim._step_index)
+            still = Control(stamp_s=t, seq=sim._step_index, accel_mps2=-4.0, steer_rad=0.0,
+                            mode="baseline", solver_status="test", solve_time_ms=0.0)
+            sim.step({"ego_1": first, "ego_2": still})
+        assert sim.running_ids() == ("ego_1", "ego_2")
+        sid = shadow_id("ego_1")
+        assert libsumo.vehicle.getLaneID(sid) == "AB_0"
+        assert libsumo.vehicle.getLeader("back", 50.0)[0] == sid
+        assert sim.record("ego_1").shadows == 1 and sim.record("ego_2").shadows == 0
+        seen = {a.id for a in sim.observe("ego_2").agents.agents}
+        assert "ego_1" in seen and sid not in seen
     finally:
         sim.close()
