@@ -9,15 +9,18 @@ into the ego's tail (the baseline on the busy right-hand "inner" short-stub net 
 straight entry: hit from behind at 24.7 s after a 15 s wait, docs/lmpc_mpc.md).
 
 The shadow makes that part of the body visible to SUMO: while the ego is slow
-(:data:`MAX_SPEED_MPS`) and its box reaches :data:`MIN_INTRUSION_M` or more into a
-neighbour lane of the lane SUMO put it on (same edge, a lane SUMO lists as its left or
-right neighbour), a standing vehicle of the ego's size, id ``<ego>.shadow``, is placed on
-that neighbour lane with its front where the ego's body reaches furthest along it. SUMO's
-drivers brake for it as for any standing car (car following, lane changing, insertion).
-It is taken out when the ego is faster than :data:`RELEASE_SPEED_MPS` or back in one
-lane. Not modelled (open): a fast ego's footprint on two lanes (the ego passes through
-in ~1-2 s; the ego's own MPC keeps its gaps there), and the body across a junction's
-internal lanes (SUMO's junction logic handles the foes there).
+(:data:`MAX_SPEED_MPS`) and its body blocks a neighbour lane it is leaving (of the lane
+SUMO put it on; the map's left / right neighbour; a car centred in that lane could not
+pass it with :data:`CLEARANCE_M` to spare; the ego heads away from it), a standing vehicle
+of the ego's size, id ``<ego>.shadow``, is placed on that neighbour lane with its front
+where the ego's body reaches furthest along it. SUMO's drivers brake for it as for any
+standing car (car following, lane changing, insertion). It is taken out when the ego is
+faster than :data:`RELEASE_SPEED_MPS` or no longer blocks the lane. Not modelled (open): a
+body reaching into the lane the ego heads for (its merge: the ego waits for a gap there;
+a shadow made SUMO's drivers wait for the ego, the ego for them - eoa seed 3 stood 180 s),
+a fast ego's footprint on two lanes (the ego passes through in ~1-2 s; the ego's own MPC
+keeps its gaps there), and the body across a junction's internal lanes (SUMO's junction
+logic handles the foes there).
 
 The shadow is not traffic: the bridge leaves it out of observations, collisions, the
 insertion guard and the entry count; a vehicle held down by it counts as held down by the
@@ -38,8 +41,16 @@ MAX_SPEED_MPS = 2.0
 """The ego is slow enough for a shadow (m/s): standing or creeping."""
 RELEASE_SPEED_MPS = 3.0
 """Above this speed an existing shadow is taken out (hysteresis over MAX_SPEED_MPS)."""
-MIN_INTRUSION_M = 0.3
-"""How far (m) the ego's body must reach into the neighbour lane, past its border."""
+CAR_WIDTH_M = 1.8
+"""Width of the car the neighbour lane is kept passable for (SUMO drives it centred)."""
+CLEARANCE_M = 0.2
+"""The body blocks the neighbour lane when a car of CAR_WIDTH_M centred in it would pass
+the body closer than this: depth into the lane > (lane width - CAR_WIDTH_M) / 2 -
+CLEARANCE_M (0.5 m in a 3.2 m lane), and at least MIN_INTRUSION_M."""
+MIN_INTRUSION_M = 0.1
+LEAVING_YAW_RAD = 0.02
+"""The ego is leaving the neighbour lane when its heading points away from it by more than
+this (relative to its own lane's direction)."""
 SHADOW_TYPE = "ego_shadow_type"
 
 _LOG = logging.getLogger(__name__)
@@ -59,7 +70,8 @@ class LaneShape:
     centerline: tuple[tuple[float, float], ...]
     width_m: float
     length_m: float
-    neighbours: tuple[str, ...]
+    left: Optional[str]
+    right: Optional[str]
     internal: bool
 
 
@@ -67,18 +79,18 @@ def lane_shapes(lanes: Sequence[Any]) -> dict[str, LaneShape]:
     """From the map's lanes (:class:`lmpc_msgs_py.messages.Lane`)."""
     out = {}
     for ln in lanes:
-        nbs = tuple(n for n in (ln.left_lane, ln.right_lane) if n)
         out[ln.id] = LaneShape(id=ln.id, edge_id=ln.edge_id, index=ln.index,
                                centerline=tuple((float(x), float(y)) for x, y in ln.centerline),
-                               width_m=ln.width_m, length_m=ln.length_m, neighbours=nbs,
-                               internal=ln.internal)
+                               width_m=ln.width_m, length_m=ln.length_m, left=ln.left_lane,
+                               right=ln.right_lane, internal=ln.internal)
     return out
 
 
 def _station(pt: tuple[float, float], line: Sequence[tuple[float, float]]
-             ) -> tuple[float, float]:
-    """(arc length of the nearest centreline point, distance to it)."""
-    best_d, best_s, s0 = math.inf, 0.0, 0.0
+             ) -> tuple[float, float, float]:
+    """(arc length of the nearest centreline point, distance to it, the centreline's
+    direction there, rad)."""
+    best_d, best_s, best_dir, s0 = math.inf, 0.0, 0.0, 0.0
     for (ax, ay), (bx, by) in zip(line[:-1], line[1:]):
         dx, dy = bx - ax, by - ay
         seg = math.hypot(dx, dy)
@@ -86,9 +98,9 @@ def _station(pt: tuple[float, float], line: Sequence[tuple[float, float]]
             t = max(0.0, min(1.0, ((pt[0] - ax) * dx + (pt[1] - ay) * dy) / (seg * seg)))
             d = math.hypot(pt[0] - ax - t * dx, pt[1] - ay - t * dy)
             if d < best_d:
-                best_d, best_s = d, s0 + t * seg
+                best_d, best_s, best_dir = d, s0 + t * seg, math.atan2(dy, dx)
         s0 += seg
-    return best_s, best_d
+    return best_s, best_d, best_dir
 
 
 def _body_points(box: OrientedBox) -> list[tuple[float, float]]:
@@ -99,27 +111,37 @@ def _body_points(box: OrientedBox) -> list[tuple[float, float]]:
     return [*c, *mids]
 
 
+def blocking_depth_m(lane_width_m: float) -> float:
+    """How far into a lane of that width the body blocks it (see CLEARANCE_M)."""
+    return max((lane_width_m - CAR_WIDTH_M) / 2.0 - CLEARANCE_M, MIN_INTRUSION_M)
+
+
 def intrusion(box: OrientedBox, ego_lane: Optional[str], lanes: Mapping[str, LaneShape]
               ) -> Optional[tuple[str, float]]:
-    """(neighbour lane, position of the body's front along it) when the box reaches
-    :data:`MIN_INTRUSION_M` past the border of a neighbour lane of ``ego_lane``."""
+    """(neighbour lane, position of the body's front along it) when the box blocks a
+    neighbour lane of ``ego_lane`` that the ego is leaving: it reaches
+    :func:`blocking_depth_m` past the lane's border and the ego heads away from it (its
+    heading, relative to its own lane, turned away by more than :data:`LEAVING_YAW_RAD`).
+    A body that reaches into the lane the ego heads for is the ego's merge, not a
+    shadow: the ego waits for its gap there (SUMO's drivers would wait for a standing
+    shadow, and the two would wait for each other)."""
     here = lanes.get(ego_lane or "")
-    if here is None or here.internal:
+    if here is None or here.internal or len(here.centerline) < 2:
         return None
+    _, _, lane_dir = _station((box.x_m, box.y_m), here.centerline)
+    rel = math.remainder(box.yaw_rad - lane_dir, 2.0 * math.pi)  # > 0: heading left
+    leaving = ([here.right] if rel > LEAVING_YAW_RAD else
+               [here.left] if rel < -LEAVING_YAW_RAD else [])
     pts = _body_points(box)
-    best: Optional[tuple[str, float, float]] = None
-    for nb_id in here.neighbours:
-        nb = lanes.get(nb_id)
-        if nb is None or len(nb.centerline) < 2:
+    for nb_id in leaving:
+        nb = lanes.get(nb_id or "")
+        if nb_id is None or nb is None or len(nb.centerline) < 2:
             continue
-        inside = [(s, d) for s, d in (_station(p, nb.centerline) for p in pts)
-                  if d <= nb.width_m / 2.0 - MIN_INTRUSION_M]
-        if not inside:
-            continue
-        depth = nb.width_m / 2.0 - min(d for _, d in inside)
-        if best is None or depth > best[2]:
-            best = (nb_id, max(s for s, _ in inside), depth)
-    return None if best is None else (best[0], best[1])
+        limit = nb.width_m / 2.0 - blocking_depth_m(nb.width_m)
+        inside = [(s, d) for s, d, _ in (_station(p, nb.centerline) for p in pts) if d <= limit]
+        if inside:
+            return nb_id, max(s for s, _ in inside)
+    return None
 
 
 @dataclass

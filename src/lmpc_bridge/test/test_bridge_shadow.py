@@ -21,7 +21,7 @@ from lmpc_bridge.geometry import OrientedBox
 from lmpc_bridge.scenarios.base import Scene, TargetSpec, run_netconvert
 from lmpc_bridge.scenarios.common import (driver_vtype, vehicle_line, write_plain_net,
                                           write_routes)
-from lmpc_bridge.shadow import LaneShape, intrusion, shadow_id
+from lmpc_bridge.shadow import LaneShape, blocking_depth_m, intrusion, shadow_id
 from lmpc_bridge.sim import EGO_ID, SumoSim
 
 LANE_W_M = 3.2
@@ -64,33 +64,35 @@ def _run(sim: SumoSim, until_s: float) -> None:
 
 
 def _lanes() -> dict[str, LaneShape]:
-    def lane(i: int, internal: bool = False) -> LaneShape:
+    def lane(i: int) -> LaneShape:
         y = -LANE_W_M / 2.0 - (1 - i) * LANE_W_M
         return LaneShape(id=f"e_{i}", edge_id="e", index=i, centerline=((0.0, y), (100.0, y)),
-                         width_m=LANE_W_M, length_m=100.0,
-                         neighbours=(f"e_{1 - i}",), internal=internal)
+                         width_m=LANE_W_M, length_m=100.0, left="e_1" if i == 0 else None,
+                         right="e_0" if i == 1 else None, internal=False)
     return {"e_0": lane(0), "e_1": lane(1)}
 
 
-def test_intrusion_needs_the_body_past_the_neighbour_lane_border() -> None:
+def test_intrusion_is_a_blocked_lane_the_ego_is_leaving() -> None:
     lanes = _lanes()
-    y0 = -LANE_W_M * 1.5  # lane 0's centre; the border with lane 1 at -3.2
-    # centred in its lane, straight: nothing in lane 1
-    assert intrusion(OrientedBox(50.0, y0, 0.0, 4.5, 1.8), "e_0", lanes) is None
-    # 0.2 m past the border (< MIN_INTRUSION_M): still nothing
-    y = -LANE_W_M - 0.9 + 0.2
-    assert intrusion(OrientedBox(50.0, y, 0.0, 4.5, 1.8), "e_0", lanes) is None
-    # 0.5 m past it: lane 1, the front where the body ends along it
-    y = -LANE_W_M - 0.9 + 0.5
-    lane_id, front = intrusion(OrientedBox(50.0, y, 0.0, 4.5, 1.8), "e_0", lanes) or ("", 0.0)
-    assert lane_id == "e_1" and front == pytest.approx(52.25)
-    # mapped to lane 1 with its tail in lane 0 (yawed): lane 0, where the tail ends
-    got = intrusion(OrientedBox(50.0, -2.6, 0.35, 4.5, 1.8), "e_1", lanes)
-    assert got is not None and got[0] == "e_0" and 46.0 < got[1] < 50.0  # the tail's front
-    # unknown or internal lanes: no shadow
-    assert intrusion(OrientedBox(50.0, -2.6, 0.35, 4.5, 1.8), None, lanes) is None
+    assert blocking_depth_m(LANE_W_M) == pytest.approx(0.5)  # (3.2 - 1.8) / 2 - 0.2
+    # mapped to lane 1 (the left one), heading left, its right-rear corner 0.8 m into
+    # lane 0 (the issue's case): lane 0, up to where the blocking part reaches (48.1 m)
+    box = OrientedBox(50.0, -2.5, 0.3, 4.5, 1.8)
+    got = intrusion(box, "e_1", lanes)
+    assert got is not None and got[0] == "e_0" and got[1] == pytest.approx(48.1, abs=0.05)
+    # the same body heading right (it is entering lane 0 from lane 1: its merge): none
+    assert intrusion(OrientedBox(50.0, -2.5, -0.3, 4.5, 1.8), "e_1", lanes) is None
+    # parallel to the lanes: neither leaving nor entering, none
+    assert intrusion(OrientedBox(50.0, -2.5, 0.0, 4.5, 1.8), "e_1", lanes) is None
+    # heading left but only 0.3 m into lane 0: a centred car passes it, none
+    assert intrusion(OrientedBox(50.0, -2.49, 0.05, 4.5, 1.8), "e_1", lanes) is None
+    # mapped to lane 0 heading left, the front-left corner in lane 1 (eoa seed 3): the
+    # ego enters lane 1, no shadow
+    assert intrusion(OrientedBox(50.0, -4.0, 0.2, 4.5, 1.8), "e_0", lanes) is None
+    # unknown or internal lanes: none
+    assert intrusion(box, None, lanes) is None
     lanes["e_1"] = LaneShape(**{**lanes["e_1"].__dict__, "internal": True})
-    assert intrusion(OrientedBox(50.0, -2.6, 0.35, 4.5, 1.8), "e_1", lanes) is None
+    assert intrusion(box, "e_1", lanes) is None
 
 
 def test_a_car_stops_behind_an_ego_standing_across_two_lanes(tmp_path: Path) -> None:
