@@ -100,3 +100,16 @@ def test_aggressive_is_faster_than_conservative(family: str, tmp_path: Path) -> 
             times[text] = res.metrics.time_s
         assert times["drive aggressively"] < times["drive conservatively"], (family, seed,
                                                                              times)
+
+
+def test_aggressive_late_merge_does_not_cut_in_beside_a_car(tmp_path: Path) -> None:
+    """Lane dev seed 119, "drive aggressively": late in the merge the ego stood in the
+    left lane, then sped up beside v7 in the exit lane and the route candidate merged it
+    into v7 (a collision at 40 s before the fix; docs/lmpc_rules.md, "Late merge beside
+    a car")."""
+    sim = SumoSim(work_dir=tmp_path / "scenes")
+    wiring = methods.build(SceneSpec("lmpc-rules", "lane", 119,
+                                     instruction="drive aggressively"))
+    res = run_episode(sim, family="lane", seed=119, controller=wiring.controller,
+                      planner=wiring.planner, max_time_s=120.0)
+    assert res.outcome == "reached", (res.outcome, res.record.collided_with, res.detail)

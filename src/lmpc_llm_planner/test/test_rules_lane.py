@@ -5,7 +5,7 @@ variant whose route goes on only from the left lane."""
 from __future__ import annotations
 
 import pytest
-from rules_kit import car, road_obs
+from rules_kit import accel_mid, ask, car, road_obs
 from rules_units import accel_of, fresh_plan, inputs
 
 from lmpc_msgs_py.messages import LaneLink
@@ -226,3 +226,60 @@ def test_aggressive_gaps_apply_only_after_the_first_second(road, planner_config,
     assert rule(5.0) == ("change", "change to the left lane")
     assert rule(5.0, instruction=None)[1] == "continue in lane"
     assert rule(0.0) == ("wait", "continue in lane")
+
+
+# lane seed 10055 (training), "drive aggressively": 78 m before the end of the edge the
+# exit lane (here the left one) held a follower f beside / just behind the ego and its
+# leader l too close ahead of f for the ego to fit in between
+def _platoon(exit_left, *, x_f: float, stamp_s: float = 20.0, x_ego: float = 320.0):
+    return road_obs(exit_left, [car("f", x_m=x_f, v_mps=10.0, left=True),
+                                car("l", x_m=x_ego + 14.0, v_mps=10.0, left=True)],
+                    x_m=x_ego, v_mps=8.0, stamp_s=stamp_s)
+
+
+def test_urgent_change_drops_back_behind_a_follower_with_no_room_ahead_of_it(
+        exit_left, planner_config, mpc_config):
+    inp = inputs(_platoon(exit_left, x_f=314.0), planner_config, mpc_config,
+                 instruction="drive aggressively")
+    plan = fresh_plan(inp)
+    assert lane_rule(inp, plan) == "wait" and label(inp, plan) == "continue in lane"
+    assert accel_of(inp, plan) < 0.0 and "no room in front of f, so I drop back" in plan.notes[-1]
+    # with the leader far ahead there is room in front of f: get ahead of it
+    free = road_obs(exit_left, [car("f", x_m=314.0, v_mps=10.0, left=True)], x_m=320.0,
+                    v_mps=8.0, stamp_s=20.0)
+    inp = inputs(free, planner_config, mpc_config, instruction="drive aggressively")
+    plan = fresh_plan(inp)
+    assert lane_rule(inp, plan) == "wait" and accel_of(inp, plan) > 0.0
+
+
+def test_the_late_forced_merge_waits_while_a_car_is_beside_in_the_target_lane(
+        exit_left, planner_config, mpc_config):
+    # 45 m before the end the aggressive merge goes along the route without the gap test,
+    # but not into a car beside (or within the minimum gap) in the target lane
+    beside = _platoon(exit_left, x_f=352.0, x_ego=352.0)
+    inp = inputs(beside, planner_config, mpc_config, instruction="drive aggressively")
+    plan = fresh_plan(inp)
+    assert lane_rule(inp, plan) == "wait" and label(inp, plan) == "continue in lane"
+    clear = road_obs(exit_left, [car("f", x_m=320.0, v_mps=10.0, left=True)], x_m=352.0,
+                     v_mps=8.0, stamp_s=20.0)
+    inp = inputs(clear, planner_config, mpc_config, instruction="drive aggressively")
+    plan = fresh_plan(inp)
+    assert lane_rule(inp, plan) == "change"
+
+
+def test_near_the_end_a_car_beside_in_the_route_lane_is_let_ahead_even_in_an_emergency(
+        exit_left, planner_config, mpc_config):
+    # the lane rule does not run in an emergency (nor within the lookahead of the edge's
+    # end); the way-is-clear rule used to speed up beside the car (lane seed 119, dev)
+    obs = road_obs(exit_left, [car("f", x_m=320.0, v_mps=8.0, left=True)], x_m=320.0,
+                   v_mps=8.0, stamp_s=20.0)
+    wire, _ = ask(obs, planner_config, mpc_config, "drive aggressively", mode="emergency")
+    assert accel_mid(wire, mpc_config) < 0.0
+    assert "f is beside me in the lane my route needs" in wire.reasoning
+    plain, _ = ask(obs, planner_config, mpc_config, None, mode="emergency")
+    assert accel_mid(plain, mpc_config) > 0.0  # no instruction: unchanged
+    # far from the end (the late merge not due yet) the car beside changes nothing
+    far = road_obs(exit_left, [car("f", x_m=150.0, v_mps=8.0, left=True)], x_m=150.0,
+                   v_mps=8.0, stamp_s=20.0)
+    wire, _ = ask(far, planner_config, mpc_config, "drive aggressively", mode="emergency")
+    assert accel_mid(wire, mpc_config) > 0.0

@@ -365,6 +365,13 @@ def merge_along_route(inp: RuleInputs, plan: Plan, lv: LaneView) -> bool:
                               or lv.dist_end_m < LANE_MERGE_FORCE_M
                               or slower_target_lane(inp, lv) is not None):
         return False
+    if inp.intent.style == "aggressive" and toward in lv.siblings \
+            and close_in(inp, lv.siblings[toward].id) is not None:
+        # the late merge leaves the MPC little road to find the gap: with a car beside
+        # or within LC_MIN_GAP_M in the target lane, wait for a gap as any other change
+        # does (lane seed 10055, training: merged without the gap test into the car
+        # beside)
+        return False
     # the route candidate, as before rule 8 existed: the MPC merges along it
     # and its safety term keeps the gaps; SUMO drivers make room. A strict gap
     # test here found no gap in dense slow traffic (lane seed 119 missed its
@@ -459,10 +466,6 @@ def gap_blocker(inp: RuleInputs, plan: Plan, crossed: list[Lane], side: str
     (``LC_*`` scaled by the style; beside the ego: gap 0), with "ahead" / "behind"; every
     one of them is attended."""
     ego = inp.scene.obs.ego
-    style = inp.intent.style
-    if style == "aggressive" and inp.scene.obs.stamp_s < AGGRESSIVE_OVERTAKE_AFTER_S:
-        style = "normal"
-    style_f = LC_STYLE_FACTOR[style]
     blocker: Optional[tuple[AgentView, str]] = None
     for ln in crossed:
         lead_nb, follow_nb = lane_state(inp.scene, ln.id)
@@ -471,14 +474,7 @@ def gap_blocker(inp: RuleInputs, plan: Plan, crossed: list[Lane], side: str
                 continue
             plan.attend(v, f"in the {side} lane {where}")
             gap = v.kin.gap_m
-            if where == "ahead":
-                closing = max(0.0, ego.v_mps - v.agent.v_mps)
-                need_gap = LC_MIN_GAP_M + style_f * (LC_HEADWAY_S * ego.v_mps
-                                                     + LC_CLOSING_HORIZON_S * closing)
-            else:
-                closing = max(0.0, v.agent.v_mps - ego.v_mps)
-                need_gap = LC_MIN_GAP_M + style_f * (LC_HEADWAY_S * v.agent.v_mps
-                                                     + LC_CLOSING_HORIZON_S * closing)
+            need_gap = change_gap_m(inp, v, where)
             if v.kin.longitudinal_m > -0.5 * ego.length_m and \
                     v.kin.longitudinal_m < 0.5 * ego.length_m + v.agent.length_m:
                 gap = 0.0  # beside me
@@ -520,9 +516,82 @@ def wait_for_gap(inp: RuleInputs, plan: Plan, lv: LaneView, lead: LeaderState, w
         # let the car beside / ahead in the target lane draw ahead, then merge behind it
         plan.accel_index = brake_index(accel, 1.0, False)
         plan.speed_set = True
-    elif want.urgent and where == "behind" and not plan.speed_set \
-            and ego.v_mps < 0.8 * lv.here.speed_limit_mps:
-        # a faster car behind in the target lane: get ahead of it if I can
-        plan.accel_index = mildest_accel(accel)
-        plan.speed_set = True
+    elif want.urgent and where == "behind" and not plan.speed_set:
+        if inp.intent.style == "aggressive" and \
+                not room_ahead_of_follower(inp, lv.siblings[want.index]):
+            # no room for the ego between it and the target lane's leader: getting
+            # ahead of it cannot end in a gap; drop back and merge behind it (lane seed
+            # 10055, training, aggressive: sped up beside the follower below a leader
+            # 9 m ahead of it, ran out of road and merged into the follower)
+            plan.accel_index = brake_index(accel, 1.0, False)
+            plan.speed_set = True
+            plan.notes.append(f"There is no room in front of {v.id}, so I drop back to "
+                              "merge behind it.")
+        elif ego.v_mps < 0.8 * lv.here.speed_limit_mps:
+            # a faster car behind in the target lane: get ahead of it if I can
+            plan.accel_index = mildest_accel(accel)
+            plan.speed_set = True
     return "wait"
+
+
+def room_ahead_of_follower(inp: RuleInputs, target: Lane) -> bool:
+    """The leader of ``target`` (ahead of the ego) leaves the lane-change gap a change in
+    front of its follower needs (none in the lane ahead: room)."""
+    lead_nb, _ = lane_state(inp.scene, target.id)
+    if lead_nb is None:
+        return True
+    return lead_nb.kin.gap_m >= change_gap_m(inp, lead_nb, "ahead")
+
+
+def change_gap_m(inp: RuleInputs, v: AgentView, where: str) -> float:
+    """The bumper gap a lane change needs to ``v``, the new leader ("ahead") or follower
+    ("behind") in the target lane: ``LC_MIN_GAP_M`` plus the style's share of the headway
+    and of what the speed difference closes in ``LC_CLOSING_HORIZON_S``."""
+    ego = inp.scene.obs.ego
+    style = inp.intent.style
+    if style == "aggressive" and inp.scene.obs.stamp_s < AGGRESSIVE_OVERTAKE_AFTER_S:
+        style = "normal"
+    style_f = LC_STYLE_FACTOR[style]
+    if where == "ahead":
+        closing = max(0.0, ego.v_mps - v.agent.v_mps)
+        return LC_MIN_GAP_M + style_f * (LC_HEADWAY_S * ego.v_mps
+                                         + LC_CLOSING_HORIZON_S * closing)
+    closing = max(0.0, v.agent.v_mps - ego.v_mps)
+    return LC_MIN_GAP_M + style_f * (LC_HEADWAY_S * v.agent.v_mps
+                                     + LC_CLOSING_HORIZON_S * closing)
+
+
+def close_in(inp: RuleInputs, lane_id: str) -> Optional[AgentView]:
+    """A vehicle along ``lane_id`` beside the ego or closer than ``LC_MIN_GAP_M`` (box
+    to box), the minimum gap of any lane change."""
+    for v in inp.scene.agents:
+        if v.agent.lane_id == lane_id and abs(v.kin.heading_rel_rad) <= ALONG_RAD \
+                and v.kin.gap_m < LC_MIN_GAP_M:
+            return v
+    return None
+
+
+def beside_in_route_lane(inp: RuleInputs) -> Optional[AgentView]:
+    """Aggressive style, within the late merge's reach of the edge's end
+    (``LANE_MERGE_AGGRESSIVE``) with the route's lane change still to be made: a vehicle
+    in the next lane towards the route's lanes beside the ego or closer than
+    ``LC_MIN_GAP_M`` (None otherwise). The late merge runs out of road: within the
+    lookahead of the edge's end the route candidate merges (the lane rule no longer
+    applies there) and the MPC cut in ahead of such a car (lane seeds 10055, training,
+    and 119, development: the ego sped up beside it and merged into it)."""
+    scene = inp.scene
+    ego = scene.obs.ego
+    here = scene.lanes.get(ego.lane_id or "")
+    if inp.intent.style != "aggressive" or here is None or here.internal:
+        return None
+    siblings = scene.edge_lanes(here)
+    ok = [ln.index for ln in continuing_lanes(scene, here, siblings)]
+    if len(siblings) < 2 or not ok or here.index in ok:
+        return None
+    nearest = min(ok, key=lambda i: (abs(i - here.index), i))
+    need = abs(nearest - here.index)
+    merge_m = need * LANE_MERGE_PER_CHANGE_M + LANE_MERGE_SLACK_M
+    if here.length_m - ego.lane_pos_m >= merge_m * LANE_MERGE_AGGRESSIVE:
+        return None
+    target = siblings.get(here.index + (1 if nearest > here.index else -1))
+    return None if target is None else close_in(inp, target.id)

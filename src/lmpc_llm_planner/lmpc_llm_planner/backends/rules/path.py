@@ -22,6 +22,7 @@ from lmpc_llm_planner.scene import AgentView
 from .emergency import brake_hard, brakes_hard
 from .intervals import accel_index, brake_index, mildest_accel, neutral, stop_index
 from .headway import wanted_gap_m
+from .lane import beside_in_route_lane
 from .plan import Plan, RuleInputs, changing_lanes, chosen_candidate
 from .scene_helpers import (
     ALONG_RAD, HARD_BRAKE_MPS2, STANDOFF_M, distance_to_path, other_lane, queued_at_junction,
@@ -136,6 +137,15 @@ def go_rule(inp: RuleInputs, plan: Plan) -> None:
     ego = scene.obs.ego
     lane = scene.lanes.get(ego.lane_id or "")
     limit = lane.speed_limit_mps if lane is not None else DEFAULT_VEHICLE.max_speed_mps
+    beside = beside_in_route_lane(inp)
+    if beside is not None:
+        # let it draw ahead and merge behind it (speeding up alongside it left the MPC
+        # to cut in ahead of it at the end of the lane)
+        plan.accel_index = brake_index(inp.accel, 1.0, False)
+        plan.weights["action"] = "high"
+        plan.notes.append(f"{beside.id} is beside me in the lane my route needs; I ease "
+                          "off to merge behind it.")
+        return
     close = None if changing_lanes(scene, plan) else close_leader_in_path(inp, plan)
     if close is not None:
         _follow(inp, plan, close)
