@@ -34,13 +34,16 @@ bench: install
 	$(PY) scripts/benchmark.py --families si,usi,lane,rab,eoa --seeds 0-24 \
 		--methods mpc,lmpc-rules,dqn --out runs/bench
 
-# Re-train the committed DQN policies (docs/RL.md, "Measured"): needs the rl extra
-# (pip install -e '.[rl]': skrl on CPU JAX); ~10 min a family on a loaded 2-core machine.
+# Re-train the committed learned planners, DQN, PPO and SAC for each family (docs/RL.md,
+# "Measured"): needs the rl extra (pip install -e '.[rl]': skrl on CPU JAX). One env per run
+# (the 2026-12-04 runs: ~6-10 min a pair on a loaded 2-core machine, ~1.5 h for PPO and SAC).
 TRAIN_STEPS ?= 8000
+TRAIN_ALGOS ?= dqn ppo sac
+TRAIN_ENVS ?= 1
 train:
-	for f in si usi lane rab eoa; do \
-		$(PY) scripts/train_rl.py --algo dqn --family $$f --steps $(TRAIN_STEPS) --seed 10000 \
-			--envs 2 --eval-scenes 5 --install || exit 1; done
+	for a in $(TRAIN_ALGOS); do for f in si usi lane rab eoa; do \
+		$(PY) scripts/train_rl.py --algo $$a --family $$f --steps $(TRAIN_STEPS) --seed 10000 \
+			--envs $(TRAIN_ENVS) --eval-scenes 5 --install || exit 1; done; done
 
 # mypy: the modules listed in pyproject.toml [tool.mypy] (issue 15's scope; it says why).
 lint: install
