@@ -155,6 +155,8 @@ class EgoShadow:
     pos_m: float = 0.0
     placements: int = 0
     """How often a shadow was put into the simulation (inserted into SUMO)."""
+    refused: bool = False
+    """SUMO refused a placement or move: no shadow for the rest of the episode."""
     log: list[str] = field(default_factory=list)
 
     @property
@@ -163,12 +165,25 @@ class EgoShadow:
 
     def copy(self) -> "EgoShadow":
         return EgoShadow(ego_id=self.ego_id, length_m=self.length_m, lane_id=self.lane_id,
-                         pos_m=self.pos_m, placements=self.placements, log=list(self.log))
+                         pos_m=self.pos_m, placements=self.placements, refused=self.refused,
+                         log=list(self.log))
 
     def update(self, traci: Any, box: OrientedBox, v_mps: float, ego_lane: Optional[str],
                lanes: Mapping[str, LaneShape], *, now_s: float) -> None:
         """Place, move or take out the shadow for the ego's box (after the ego's move
-        was sent, before the simulation step)."""
+        was sent, before the simulation step). A SUMO refusal (e.g. the lane cannot take
+        it) is logged and the shadow given up for the rest of the episode: it never ends
+        the episode."""
+        if self.refused:
+            return
+        try:
+            self._update(traci, box, v_mps, ego_lane, lanes, now_s)
+        except Exception as exc:  # noqa: BLE001 - libsumo raises its own types
+            self._remove(traci, now_s, f"SUMO refused it: {exc}; no shadow in this episode")
+            self.refused = True
+
+    def _update(self, traci: Any, box: OrientedBox, v_mps: float, ego_lane: Optional[str],
+                lanes: Mapping[str, LaneShape], now_s: float) -> None:
         limit = RELEASE_SPEED_MPS if self.lane_id is not None else MAX_SPEED_MPS
         want = intrusion(box, ego_lane, lanes) if v_mps <= limit else None
         if want is None:
@@ -182,7 +197,8 @@ class EgoShadow:
         if self.lane_id is not None and lanes[self.lane_id].edge_id != lane.edge_id:
             self._remove(traci, now_s, "the ego's lane changed edge")
         vid = self.vehicle_id
-        if self.lane_id is None:
+        new = self.lane_id is None
+        if new:
             _ensure_type(traci)
             route = f"r_{vid}_{lane.edge_id}"
             if route not in traci.route.getIDList():
@@ -190,14 +206,16 @@ class EgoShadow:
             traci.vehicle.add(vid, route, typeID=SHADOW_TYPE, depart="now",
                               departLane=str(lane.index), departPos=f"{pos:.3f}",
                               departSpeed="0")
+            self.lane_id = lane_id  # in SUMO now (a refusal below takes it out again)
             traci.vehicle.setSpeedMode(vid, 0)
             traci.vehicle.setLaneChangeMode(vid, 0)
+        traci.vehicle.moveTo(vid, lane_id, pos)  # a pending shadow is inserted here
+        traci.vehicle.setSpeed(vid, 0.0)
+        self.lane_id, self.pos_m = lane_id, pos
+        if new:
             self.placements += 1
             self._note(f"{now_s:.1f} s: {vid} placed on {lane_id} at {pos:.1f} m (the ego "
                        f"stands across two lanes)")
-        traci.vehicle.moveTo(vid, lane_id, pos)
-        traci.vehicle.setSpeed(vid, 0.0)
-        self.lane_id, self.pos_m = lane_id, pos
 
     def restore(self, traci: Any) -> None:
         """After SUMO restarted on a saved state: the shadow's TraCI settings again."""

@@ -186,3 +186,26 @@ def test_multi_ego_sim_shadows_an_ego_across_two_lanes(tmp_path: Path,
         assert "ego_1" in seen and sid not in seen
     finally:
         sim.close()
+
+
+def test_a_sumo_refusal_drops_the_shadow_not_the_episode(tmp_path: Path,
+                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """SUMO refusing the shadow's move is logged; the episode goes on (here: into the
+    collision the shadow would have prevented)."""
+    def refuse(*args: object, **kwargs: object) -> None:
+        raise libsumo.TraCIException("refused for the test")
+
+    monkeypatch.setattr(libsumo.vehicle, "moveTo", refuse)
+    sim = SumoSim(work_dir=tmp_path)
+    try:
+        sim.reset_scene(_scene(tmp_path))
+        _run(sim, 9.0)
+        record = sim.record()
+        assert record.outcome == "collision" and record.collided_with == "back"
+        assert shadow_id(EGO_ID) not in libsumo.vehicle.getIDList()
+        refusals = [line for line in record.shadow_log if "SUMO refused it" in line]
+        assert len(refusals) == 1 and "refused for the test" in refusals[0]
+        assert len(record.shadow_log) == 1  # tried once, then no shadow in this episode
+        assert record.shadows == 0  # it never stood in the simulation
+    finally:
+        sim.close()
