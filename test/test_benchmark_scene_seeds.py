@@ -2,22 +2,14 @@
 seed and background-traffic seed), and a run whose every row is an error exits non-zero."""
 from __future__ import annotations
 
-import csv
-import subprocess
 import sys
 from pathlib import Path
 
+from benchkit import bench_rows, read_rows, run_benchmark
 from graphkit import REPO
 
 sys.path.insert(0, str(REPO / "src" / "lmpc_bridge" / "test"))
 from test_bridge_external import make_rab_tls_net  # noqa: E402
-
-BENCH = REPO / "scripts" / "benchmark.py"
-
-
-def _bench(*args: str, timeout_s: float = 400) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, str(BENCH), *args], capture_output=True, text=True,
-                          timeout=timeout_s)
 
 
 def test_scene_with_seeds_runs_one_scene_per_seed(tmp_path: Path) -> None:
@@ -26,18 +18,13 @@ def test_scene_with_seeds_runs_one_scene_per_seed(tmp_path: Path) -> None:
     scene.write_text(f"net: {net}\nseed: 1\nbackground: {{period_s: 3, end_s: 200, seed: 4}}\n"
                      "warmup_s: 20\nmax_time_s: 8\n"
                      "ego: {start: {edge: WT, pos_m: 15}, speed_mps: 5, to_edge: R2E}\n")
-    out = tmp_path / "bench"
-    proc = _bench("--scene", str(scene), "--seeds", "0-1", "--methods", "mpc", "--workers",
-                  "2", "--out", str(out))
-    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
-    rows = list(csv.DictReader((out / "results.csv").open()))
+    rows = bench_rows("--scene", str(scene), "--seeds", "0-1", "--methods", "mpc", "--workers",
+                      "2", out=tmp_path / "bench")
     assert sorted((r["family"], r["seed"]) for r in rows) == [("short", "0"), ("short", "1")]
     assert all(r["outcome"] in ("reached", "timeout", "collision") for r in rows), rows
     # without --seeds: the file's own seed, one scene
-    proc = _bench("--scene", str(scene), "--methods", "mpc", "--workers", "1", "--out",
-                  str(tmp_path / "own"))
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    rows = list(csv.DictReader((tmp_path / "own" / "results.csv").open()))
+    rows = bench_rows("--scene", str(scene), "--methods", "mpc", "--workers", "1",
+                      out=tmp_path / "own")
     assert [(r["family"], r["seed"]) for r in rows] == [("short", "1")]
 
 
@@ -52,9 +39,9 @@ def test_a_benchmark_whose_every_row_is_an_error_exits_non_zero(tmp_path: Path) 
     scene.write_text(f"net: {net}\nroutes: [parked.rou.xml]\nwarmup_s: 20\n"
                      "ego: {start: {edge: WT, pos_m: 31}, to_edge: R2E}\n")
     out = tmp_path / "bench"
-    proc = _bench("--scene", str(scene), "--seeds", "0-1", "--methods", "mpc", "--workers",
-                  "2", "--out", str(out))
-    rows = list(csv.DictReader((out / "results.csv").open()))
+    proc = run_benchmark("--scene", str(scene), "--seeds", "0-1", "--methods", "mpc",
+                         "--workers", "2", "--out", str(out))
+    rows = read_rows(out)
     assert [r["outcome"] for r in rows] == ["error", "error"]
     assert proc.returncode == 1, proc.stderr[-2000:]
     assert "every one of the 2 scene(s) ended in an error" in proc.stderr

@@ -8,13 +8,13 @@ with one clear error and leaves no node running.
 """
 from __future__ import annotations
 
-import csv
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from benchkit import bench_rows
 from graphkit import REPO, graph_processes, run_graph
 
 sys.path.insert(0, str(REPO / "src" / "lmpc_bridge" / "test"))
@@ -62,12 +62,8 @@ _OPEN_OFF_ROUTE: set[str] = set()
     if n in _OPEN_OFF_ROUTE else n for n in sorted(BUILDERS)])
 def test_both_methods_reach_the_target(tmp_path: Path, name: str) -> None:
     scene = _scene(tmp_path, name)
-    out = tmp_path / "bench"
-    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "benchmark.py"), "--scene",
-                           str(scene), "--methods", "mpc,lmpc-rules", "--workers", "2",
-                           "--out", str(out)], capture_output=True, text=True, timeout=400)
-    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
-    rows = list(csv.DictReader((out / "results.csv").open()))
+    rows = bench_rows("--scene", str(scene), "--methods", "mpc,lmpc-rules", "--workers", "2",
+                      out=tmp_path / "bench", timeout_s=400)
     assert sorted(r["method"] for r in rows) == ["lmpc-rules", "mpc"]
     for row in rows:
         assert row["outcome"] == "reached", row
@@ -127,12 +123,8 @@ def test_long_joined_ids_drive_through_benchmark_and_graph(
         f"net: {net}\nseed: 1\nbackground: {{period_s: 4, end_s: 300, seed: 2}}\n"
         f"warmup_s: 20\nmax_time_s: 90\nego: {{start: {{edge: '{JOINED_FROM}', pos_m: 100}}, "
         f"speed_mps: 5, to_edge: '{JOINED_TO}'}}\ntarget: {{pos_m: 60}}\n")
-    out = tmp_path / "bench"
-    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "benchmark.py"), "--scene",
-                           str(scene), "--methods", "mpc,lmpc-rules", "--workers", "2",
-                           "--out", str(out)], capture_output=True, text=True, timeout=400)
-    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
-    rows = list(csv.DictReader((out / "results.csv").open()))
+    rows = bench_rows("--scene", str(scene), "--methods", "mpc,lmpc-rules", "--workers", "2",
+                      out=tmp_path / "bench", timeout_s=400)
     assert {r["method"]: r["outcome"] for r in rows} == {"mpc": "reached",
                                                          "lmpc-rules": "reached"}, rows
     run = run_graph(tmp_path / "g", domain_id, "--scene", str(scene), "--planner", "rules",
@@ -162,10 +154,6 @@ def test_late_demand_is_named_in_the_summary_and_the_benchmark(tmp_path: Path,
     assert "no background vehicle departs between t = 0 s and 16 s" in warning
     assert "set begin_s: 25200" in warning
     assert "warning: traffic: no background vehicle departs" in run.output
-    out = tmp_path / "bench"
-    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "benchmark.py"), "--scene",
-                           str(scene), "--methods", "mpc", "--workers", "1", "--out", str(out)],
-                          capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    (row,) = list(csv.DictReader((out / "results.csv").open()))
+    (row,) = bench_rows("--scene", str(scene), "--methods", "mpc", "--workers", "1",
+                        out=tmp_path / "bench", timeout_s=300)
     assert "traffic: no background vehicle departs" in row["detail"]

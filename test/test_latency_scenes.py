@@ -5,15 +5,13 @@ latencies are recorded in results.csv and summary.json, the MPC's stale-decision
 in the decision logs."""
 from __future__ import annotations
 
-import csv
 import json
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+from benchkit import REPO, bench_rows, read_rows, run_benchmark
 
 # the scenes named by the issue (all four reached after the MPC changes of 2026-12-03,
 # docs/lmpc_mpc.md, "stale decisions, second round"; usi 21 is off route since the third)
@@ -25,18 +23,14 @@ def latency_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("latency")
     for family in ("si", "usi"):
         seeds = ",".join(str(s) for f, s in SCENES if f == family)
-        res = subprocess.run(
-            [sys.executable, str(REPO / "scripts" / "benchmark.py"), "--families", family,
-             "--seeds", seeds, "--methods", "lmpc-rules", "--workers", "1",
-             "--decision-latency", "2.5", "--out", str(out / family)],
-            capture_output=True, text=True, timeout=900)
-        assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+        bench_rows("--families", family, "--seeds", seeds, "--methods", "lmpc-rules",
+                   "--workers", "1", "--decision-latency", "2.5", out=out / family,
+                   timeout_s=900)
     return out
 
 
 def _row(run: Path, family: str, seed: int) -> dict[str, str]:
-    with open(run / family / "results.csv", newline="") as fh:
-        return next(r for r in csv.DictReader(fh) if int(r["seed"]) == seed)
+    return next(r for r in read_rows(run / family) if int(r["seed"]) == seed)
 
 
 _OPEN: set[tuple[str, int]] = set()
@@ -119,12 +113,8 @@ def test_planning_period_spaces_the_normal_decisions(tmp_path: Path) -> None:
     come 5 s apart (emergencies in between as ever), the period is in summary.json and the
     config used is kept in the run folder; a bad period is refused before any scene."""
     out = tmp_path / "p5"
-    res = subprocess.run(
-        [sys.executable, str(REPO / "scripts" / "benchmark.py"), "--families", "usi",
-         "--seeds", "100", "--methods", "lmpc-rules", "--workers", "1",
-         "--planning-period", "5", "--out", str(out)],
-        capture_output=True, text=True, timeout=600)
-    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    bench_rows("--families", "usi", "--seeds", "100", "--methods", "lmpc-rules", "--workers",
+               "1", "--planning-period", "5", out=out)
     assert json.loads((out / "summary.json").read_text())["planning_period_s"] == 5.0
     assert "period_s: 5.0" in (out / "planner_config.yaml").read_text()
     stamps = [json.loads(line)["stamp_s"] for line in
@@ -132,9 +122,8 @@ def test_planning_period_spaces_the_normal_decisions(tmp_path: Path) -> None:
               if json.loads(line).get("mode") == "normal"]
     assert len(stamps) >= 3, stamps
     assert min(b - a for a, b in zip(stamps, stamps[1:])) >= 5.0 - 1e-6, stamps
-    bad = subprocess.run(
-        [sys.executable, str(REPO / "scripts" / "benchmark.py"), "--families", "usi",
-         "--seeds", "100", "--methods", "lmpc-rules", "--planning-period", "0",
-         "--out", str(tmp_path / "bad")], capture_output=True, text=True, timeout=120)
+    bad = run_benchmark("--families", "usi", "--seeds", "100", "--methods", "lmpc-rules",
+                        "--planning-period", "0", "--out", str(tmp_path / "bad"),
+                        timeout_s=120)
     assert bad.returncode == 2 and "--planning-period must be within" \
         in bad.stderr, bad.stderr[-500:]

@@ -10,14 +10,13 @@ in traffic on the nets whose change is to the near-side lane.
 """
 from __future__ import annotations
 
-import csv
 import math
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from benchkit import bench_rows
 from graphkit import REPO
 
 sys.path.insert(0, str(REPO / "src" / "lmpc_bridge" / "test"))
@@ -66,11 +65,8 @@ def test_planner_offers_the_route_where_the_lane_choices_leave_it(tmp_path: Path
 
 
 def _bench(scene: Path, methods: str, out: Path) -> list[dict[str, str]]:
-    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "benchmark.py"), "--scene",
-                           str(scene), "--methods", methods, "--workers", "2",
-                           "--out", str(out)], capture_output=True, text=True, timeout=500)
-    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
-    return list(csv.DictReader((out / "results.csv").open()))
+    return bench_rows("--scene", str(scene), "--methods", methods, "--workers", "2", out=out,
+                      timeout_s=500)
 
 
 _RULES_BUSY_OPEN: set[tuple[str, bool, bool]] = set()

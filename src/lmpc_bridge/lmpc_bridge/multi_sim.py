@@ -195,7 +195,7 @@ class MultiSumoSim:
             self.egos[spec.ego_id] = EgoRun(
                 spec=spec, scene=view, map=mp, route=route, pose=pose,
                 foes_query=foes_query_ok(net, spec.route_edges),
-                shadow=EgoShadow(spec.ego_id, self._vehicle.length_m),
+                shadow=EgoShadow(spec.ego_id),
                 lane_shapes=lane_shapes(mp.lanes))
             for domain in (tc.CMD_GET_VEHICLE_VARIABLE, tc.CMD_GET_PERSON_VARIABLE):
                 t.vehicle.subscribeContext(spec.ego_id, domain, self._range_m,

@@ -149,7 +149,6 @@ class EgoShadow:
     """One ego's shadow in SUMO (see module docstring)."""
 
     ego_id: str
-    length_m: float
     lane_id: Optional[str] = None
     """The lane the shadow stands on (None: not in the simulation)."""
     pos_m: float = 0.0
@@ -164,9 +163,8 @@ class EgoShadow:
         return shadow_id(self.ego_id)
 
     def copy(self) -> "EgoShadow":
-        return EgoShadow(ego_id=self.ego_id, length_m=self.length_m, lane_id=self.lane_id,
-                         pos_m=self.pos_m, placements=self.placements, refused=self.refused,
-                         log=list(self.log))
+        return EgoShadow(ego_id=self.ego_id, lane_id=self.lane_id, pos_m=self.pos_m,
+                         placements=self.placements, refused=self.refused, log=list(self.log))
 
     def update(self, traci: Any, box: OrientedBox, v_mps: float, ego_lane: Optional[str],
                lanes: Mapping[str, LaneShape], *, now_s: float) -> None:

@@ -159,7 +159,7 @@ class SumoSim:
         self._reached_at_s: float | None = None
         self._max_time_s = 200.0
         self._guard = InsertionGuard()
-        self._shadow = EgoShadow(EGO_ID, self._vehicle.length_m)
+        self._shadow = EgoShadow(EGO_ID)
         self._lane_shapes: dict[str, LaneShape] = {}
         self._foes_query_ok = True
         self._route_edges: set[str] | None = None
@@ -368,8 +368,7 @@ class SumoSim:
         self._collided_with, self._reached_at_s = state.collided_with, state.reached_at_s
         self._max_time_s = state.max_time_s
         self._guard = state.guard.copy() if state.guard is not None else InsertionGuard()
-        self._shadow = (state.shadow.copy() if state.shadow is not None
-                        else EgoShadow(EGO_ID, self._vehicle.length_m))
+        self._shadow = state.shadow.copy() if state.shadow is not None else EgoShadow(EGO_ID)
         self._shadow.restore(t)
 
     def _check_start_free(self, scene: Scene) -> None:
