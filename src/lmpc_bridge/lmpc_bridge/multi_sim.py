@@ -360,11 +360,8 @@ class MultiSumoSim:
                 self._guard.release_clear(t, guard, now_s=now)
             for e in self.egos.values():
                 if e.running and e.shadow is not None:
-                    q = e.pose
-                    e.shadow.update(t, OrientedBox(q.x_m, q.y_m, q.yaw_rad,
-                                                   self._vehicle.length_m,
-                                                   self._vehicle.width_m),
-                                    q.v_mps, e.lane, e.lane_shapes, now_s=now)
+                    e.shadow.update(t, self._body(e.pose), e.pose.v_mps, e.lane, e.lane_shapes,
+                                    now_s=now)
             t.simulationStep()
             self._guard.hold_overlapping(t, guard, now_s=now,
                                          skip={*self.egos, *self._shadow_ids})
@@ -388,16 +385,17 @@ class MultiSumoSim:
                 self._record(ego, guarded, control, late)
         self._finish_step()
 
+    def _body(self, pose: EgoPose) -> OrientedBox:
+        """An ego's box at ``pose`` (box centre)."""
+        return OrientedBox(pose.x_m, pose.y_m, pose.yaw_rad, self._vehicle.length_m,
+                           self._vehicle.width_m)
+
     def _collision(self, ego: EgoRun) -> Optional[str]:
-        p = ego.pose
-        box = OrientedBox(p.x_m, p.y_m, p.yaw_rad, self._vehicle.length_m,
-                          self._vehicle.width_m)
+        box = self._body(ego.pose)
         for other in sorted(self.egos.values(), key=lambda e: e.ego_id):
             if other is ego or not other.running:
                 continue  # a finished ego left SUMO
-            q = other.pose
-            if boxes_overlap(box, OrientedBox(q.x_m, q.y_m, q.yaw_rad, self._vehicle.length_m,
-                                              self._vehicle.width_m)):
+            if boxes_overlap(box, self._body(other.pose)):
                 return other.ego_id
         for s in sorted(ego.seen.values(), key=lambda s: s.id):
             if s.id not in self.egos and boxes_overlap(box, s.box()):
@@ -407,8 +405,7 @@ class MultiSumoSim:
     def _record(self, ego: EgoRun, guarded: Any, control: Optional[Control],
                 late: bool) -> None:
         p = ego.pose
-        box = OrientedBox(p.x_m, p.y_m, p.yaw_rad, self._vehicle.length_m,
-                          self._vehicle.width_m)
+        box = self._body(p)
         hit = self._collision(ego)
         req_a = None if late or control is None else control.accel_mps2
         req_s = None if late or control is None else control.steer_rad

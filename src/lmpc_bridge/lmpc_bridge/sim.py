@@ -566,6 +566,8 @@ class SumoSim:
                                   vehicle=self._vehicle)
         p = self._pose
         half = self._vehicle.length_m / 2.0
+        ego_box = OrientedBox(p.x_m, p.y_m, p.yaw_rad, self._vehicle.length_m,
+                              self._vehicle.width_m)
         t = self._traci
         try:
             t.vehicle.moveToXY(EGO_ID, "", -1, p.x_m + half * math.cos(p.yaw_rad),
@@ -576,9 +578,8 @@ class SumoSim:
                                        self._vehicle.width_m, p.v_mps)}
             if self._guard.held:
                 self._guard.release_clear(t, guard, now_s=now)
-            self._shadow.update(t, OrientedBox(p.x_m, p.y_m, p.yaw_rad, self._vehicle.length_m,
-                                               self._vehicle.width_m), p.v_mps,
-                                self._ego_lane, self._lane_shapes, now_s=now)
+            self._shadow.update(t, ego_box, p.v_mps, self._ego_lane, self._lane_shapes,
+                                now_s=now)
             t.simulationStep()
             self._guard.hold_overlapping(t, guard, now_s=now,
                                          skip=(EGO_ID, self._shadow.vehicle_id))
@@ -591,8 +592,6 @@ class SumoSim:
             self._finish("error", "SUMO removed the ego (left the network?)")
             return self._info(guarded, late)
         self._refresh()
-        ego_box = OrientedBox(p.x_m, p.y_m, p.yaw_rad, self._vehicle.length_m,
-                              self._vehicle.width_m)
         collided = None
         for s in sorted(self._seen.values(), key=lambda s: s.id):
             if boxes_overlap(ego_box, s.box()):
