@@ -176,15 +176,21 @@ def lane_view(scene: Scene, intent: Intent) -> Optional[LaneView]:
     dist_end_m = max(0.0, here.length_m - ego.lane_pos_m)
     open_ok = sorted(ln.index for ln in continuing if ln.id not in closed)
     ok_idx = open_ok or sorted(ln.index for ln in continuing)
-    need = min((abs(i - here.index) for i in ok_idx), default=0)
-    toward = None
-    if need > 0:
-        nearest = min(ok_idx, key=lambda i: (abs(i - here.index), i))
-        toward = here.index + (1 if nearest > here.index else -1)
+    need, toward = changes_toward(here.index, ok_idx)
     return LaneView(here=here, siblings=siblings, by_lane=by_lane, route_lane=route_lane,
                     closed=closed, route_needs_closed=bool(closed) and not open_ok,
                     make_room=intent.make_room, ok_idx=ok_idx, need=need, toward=toward,
                     dist_end_m=dist_end_m, left_hand=left_hand)
+
+
+def changes_toward(index: int, ok_idx: list[int]) -> tuple[int, Optional[int]]:
+    """(lane changes from lane ``index`` to the nearest lane of ``ok_idx``, the next lane
+    on the way there; None when ``index`` is one of them or there are none)."""
+    need = min((abs(i - index) for i in ok_idx), default=0)
+    if need == 0:
+        return 0, None
+    nearest = min(ok_idx, key=lambda i: (abs(i - index), i))
+    return need, index + (1 if nearest > index else -1)
 
 
 def offered_by_lane(scene: Scene, here: Lane) -> dict[str, int]:
@@ -585,13 +591,12 @@ def beside_in_route_lane(inp: RuleInputs) -> Optional[AgentView]:
     if inp.intent.style != "aggressive" or here is None or here.internal:
         return None
     siblings = scene.edge_lanes(here)
-    ok = [ln.index for ln in continuing_lanes(scene, here, siblings)]
-    if len(siblings) < 2 or not ok or here.index in ok:
+    need, toward = changes_toward(
+        here.index, [ln.index for ln in continuing_lanes(scene, here, siblings)])
+    if len(siblings) < 2 or toward is None:
         return None
-    nearest = min(ok, key=lambda i: (abs(i - here.index), i))
-    need = abs(nearest - here.index)
     merge_m = need * LANE_MERGE_PER_CHANGE_M + LANE_MERGE_SLACK_M
     if here.length_m - ego.lane_pos_m >= merge_m * LANE_MERGE_AGGRESSIVE:
         return None
-    target = siblings.get(here.index + (1 if nearest > here.index else -1))
+    target = siblings.get(toward)
     return None if target is None else close_in(inp, target.id)
