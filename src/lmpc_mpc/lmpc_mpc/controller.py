@@ -105,6 +105,9 @@ class ControllerStats:
     """Agent-steps an agent was re-attended with the MPC's own forecast (stale check)."""
     go_refused: int = 0
     """Steps on which a decision's "go" bias was refused (the MPC's crossing rule yields)."""
+    brake_refused: int = 0
+    """Steps on which a decision's braking was not executed on a roundabout with a car
+    closing in from behind (``StaleVerdict.brake_refused_for``)."""
     refused_decisions: int = 0
     """Decisions refused on arrival: made in another decision space (their ``space_hash``
     is not this MPC's) or with an interval index outside this space."""
@@ -185,7 +188,8 @@ class MpcController(CrossingRules):
         self._counts = {"steps": 0, "solver_failures": 0, "fallbacks": 0, "shifted": 0,
                         "brakes": 0, "stale_inputs": 0, "floor_additions": 0,
                         "hedged": 0, "route_overrides": 0, "stale_steps": 0,
-                        "stale_agent_steps": 0, "go_refused": 0, "refused_decisions": 0}
+                        "stale_agent_steps": 0, "go_refused": 0, "brake_refused": 0,
+                        "refused_decisions": 0}
         self._mode = "idle"
         self._solved_decision_id: Optional[str] = None
         self._ego_v_mps = 0.0
@@ -236,6 +240,9 @@ class MpcController(CrossingRules):
         self._leaders: list[tuple[str, float]] = []
         """Agents followed as leaders on the last step, with the reference's limit behind
         them (the least over the horizon, m along the path)."""
+        self._followers: list[str] = []
+        """Agents on the last step coming onto the ego's path from behind, going its way
+        (``_lead_limits``): a stop would be run into."""
         self._beside: set[int] = set()
         """Indices of this step's obstacles that stay beside the path (``_lead_limits``)."""
 
@@ -511,8 +518,20 @@ class MpcController(CrossingRules):
             refused = tuple(dict.fromkeys(list(self._yielded) + list(held)))
             bias = (0.0, bias[1])
             ref_acc = cfg.reference_accel_mps2
+        brake_refused: tuple[str, ...] = ()
+        if check and bias[0] < cfg.decision_space.neutral_accel_band[0] and self._followers \
+                and lane is not None and lane.roundabout:
+            # a braking decision executed on the roundabout (made before the entry, "slow
+            # to 5 m/s for the turn", it braked the reference to a stop on the ring) while a
+            # car behind closes in on the ego's path: the ego stopped on the ring and was
+            # run into (rab 101 at 1.5 s, rab 10034 at 5 s). Its own crossing rule and
+            # leaders still brake it where something ahead asks for it
+            brake_refused = tuple(dict.fromkeys(self._followers))
+            bias = (0.0, bias[1])
+            ref_v_cap, ref_dec = veh.max_speed_mps, None
         self._note_stale(decision, StaleVerdict(reattended=reattended, go_refused_for=refused,
-                                                lane_change_refused_for=lane_change_refused))
+                                                lane_change_refused_for=lane_change_refused,
+                                                brake_refused_for=brake_refused))
         ref = timed_reference(path, v0_mps=ego.v_mps, v_max_mps=min(v_limit, ref_v_cap),
                               a_max_mps2=ref_acc, a_dec_mps2=ref_dec,
                               a_lat_max_mps2=cfg.reference_lat_accel_mps2, horizon=n,

@@ -55,10 +55,23 @@ zone's margin: "cannot stop before the zone" counts from the physical zone."""
 _COMMIT_HOLD_S = 6.0
 """Once the ego commits to pass ahead of a crossing agent, it keeps that commitment this
 long (sim time) while the agent stays a conflict, so it does not stop half-way."""
+_HOLD_INTO_M = 1.0
+"""A crossing the ego cannot clear before the agent arrives, and whose physical zone (the
+safety gap braked into) a hard stop now overshoots by at most this, is yielded to by
+stopping where the ego is, not committed to (``_lead_limits``) [m]."""
 _LANE_CHANGE_AHEAD_M = 25.0
 """A decision's curve that is in another lane this far ahead is a lane change."""
 _COMFORT_DECEL_MPS2 = 3.0
 """A yellow light is run through when stopping would need more than this."""
+
+
+RING_SUFFIX = "#ring"
+"""Obstacle id suffix of a ring agent's forecast along the ring (``_ring_alternative``)."""
+
+
+def _agent_of(obstacle_id: str) -> str:
+    """The agent an obstacle id stands for (without an own / ring forecast suffix)."""
+    return obstacle_id.removesuffix(OWN_SUFFIX).removesuffix(RING_SUFFIX)
 
 
 def _time_to_m(dist_m: float, v_mps: float, accel_mps2: float) -> float:
@@ -81,6 +94,7 @@ class CrossingRules:
     _committed: dict[str, float]
     _yielded: list[str]
     _leaders: list[tuple[str, float]]
+    _followers: list[str]
     _beside: set[int]
     _zone_tail: dict[str, np.ndarray]
     _timing: tuple
@@ -114,6 +128,7 @@ class CrossingRules:
         ahead, so tracking and the safety term do not fight (our choice; the
         paper leaves the reference's speed profile open)."""
         self._leaders = []
+        self._followers = []
         self._beside = set()
         if not obstacles:
             return None
@@ -152,11 +167,12 @@ class CrossingRules:
                 # in): no conflict zone ahead to yield to. Taken as crossing, its zone
                 # from behind the ego made every other zone start behind the ego ("never
                 # stop in another's zone"), so the ego committed to all of them
+                self._followers.append(_agent_of(ob.obstacle_id))
                 continue
             if on[0] and along:
                 # a vehicle ahead going our way: follow it at gap + headway
                 limit[on] = np.minimum(limit[on], s_k[on] - gap - cfg.safety_headway_s * v)
-                self._leaders.append((ob.obstacle_id.removesuffix(OWN_SUFFIX),
+                self._leaders.append((_agent_of(ob.obstacle_id),
                                       float(np.min(limit[on]))))
                 continue
             # crossing or oncoming: its zone on our path and the last step it is there
@@ -190,9 +206,20 @@ class CrossingRules:
             # stop" a few cm inside the gap and committed in front of the car it had
             # waited for
             into_gap = _BRAKE_INTO_GAP * cfg.safety_gap_m
-            clears = s_enter + into_gap < hard_m or \
-                self._time_along(s_exit) <= k_first * cfg.dt_s
+            in_time = self._time_along(s_exit) <= k_first * cfg.dt_s
+            stop_in_m = hard_m - (s_enter + into_gap)
+            clears = stop_in_m > 0.0 or in_time
             since = self._committed.get(oid)
+            if k_first <= n and not in_time and 0.0 < stop_in_m <= _HOLD_INTO_M:
+                # at the zone's edge, slow (a hard stop ends at most _HOLD_INTO_M inside
+                # it), and unable to clear it before the agent arrives: stop here, do not
+                # commit. "Cannot stop before it" sent an ego creeping at 1 m/s 0.5 m
+                # inside an oncoming car's zone margin across the bike and the car it had
+                # just waited for (si 110 at a 1.5 s latency, dev seeds)
+                limit[: k_last + 1] = np.minimum(limit[: k_last + 1], s_enter)
+                self._yielded.append(_agent_of(oid))
+                self._committed.pop(oid, None)
+                continue
             if k_first > n:
                 # an ARRIVING agent (on our path only beyond the horizon): yielded to only
                 # when the ego cannot clear its zone before it arrives and can still stop
@@ -203,7 +230,7 @@ class CrossingRules:
                 if s_enter + into_gap >= comfort_m and \
                         self._time_along(s_exit) > k_first * cfg.dt_s:
                     limit[:] = np.minimum(limit, s_enter)
-                    self._yielded.append(oid.removesuffix(OWN_SUFFIX))
+                    self._yielded.append(_agent_of(oid))
                 continue
             if since is not None and 0.0 <= self._now_s - since <= _COMMIT_HOLD_S and clears:
                 # committed earlier: as the ego slows, the comfortable stopping distance
@@ -223,7 +250,7 @@ class CrossingRules:
                 continue
             # stay out of the conflict zone until it has left (plus one headway)
             limit[: k_last + 1] = np.minimum(limit[: k_last + 1], s_enter)
-            self._yielded.append(oid.removesuffix(OWN_SUFFIX))
+            self._yielded.append(_agent_of(oid))
         return None if not np.any(np.isfinite(limit)) else limit
 
     def _time_along(self, s_m: float) -> float:
@@ -300,10 +327,29 @@ class CrossingRules:
         placed = {ob.obstacle_id: ob for ob in obstacles}
         added: list[str] = []
         in_ids = {a.id for a in in_problem}
+        ego_lane = lane_at(obs.map, x_m=ego.x_m, y_m=ego.y_m, yaw_rad=ego.yaw_rad,
+                           lane_id=ego.lane_id)
+        entering = ego_lane is not None and not ego_lane.roundabout
         for ag in obs.agents.agents:
             dist = math.hypot(ag.x_m - ego.x_m, ag.y_m - ego.y_m)
             if dist > cfg.sensing_range_m or dist > reach + ag.v_mps * horizon_s + 10.0:
                 continue  # cannot meet the ego's path within the horizon
+            # only for an agent the decision does not attend (it dropped it, or had not
+            # seen it): one it attends it predicts itself, as the reasoner's gap check does
+            ring = self._ring_alternative(obs, ag) if entering and ag.id not in preds \
+                else None
+            if ring is not None and ag.id + RING_SUFFIX not in placed:
+                # the ego approaches on a road, the agent is on a ring: also kept clear
+                # of along the ring (it may go on past the ego's entry)
+                alt = self._zone_forecast(ag.id + RING_SUFFIX, ag, ring, obs)
+                s_k, d_k = line.project_many(alt)
+                lat = 0.5 * (veh.width_m + ag.width_m) + cfg.safety_lateral_gap_m
+                if on_path(s_k, d_k, lateral_clear_m=lat, reach_m=reach,
+                           path_length_m=line.length_m):
+                    obstacles.append(Obstacle(ag.id + RING_SUFFIX, alt, ag.length_m,
+                                              ag.width_m))
+                    speeds.append(ag.v_mps)
+                    added.append(ag.id)
             if ag.id in in_ids and (ag.id not in preds or ag.id + OWN_SUFFIX in placed):
                 continue  # already avoided along the MPC's own forecast
             own = self._baseline_curve(obs, ag) if ag.v_mps >= 0.05 else None
@@ -323,6 +369,30 @@ class CrossingRules:
             added.append(ag.id)
         return tuple(added)
 
+    def _ring_alternative(self, obs: Observation, ag: Agent
+                          ) -> Optional[tuple[tuple[float, float], ...]]:
+        """For an agent on a roundabout ring whose own forecast (closest heading) leaves
+        the ring at the next junction: its candidate staying on the ring, else None.
+
+        Whether a ring car exits before the ego's entry or goes on past it is not known
+        (no indicator); the closest heading chose the exit for ``circ0`` in rab 112 (dev,
+        1.5 s) and the MPC, under a decision that had not seen the car, drove into the
+        ring in front of it. The rules reasoner counts every ring agent upstream, so
+        does this check (``_reattend_stale``)."""
+        if ag.v_mps < 0.05:
+            return None
+        lane = lane_at(obs.map, x_m=ag.x_m, y_m=ag.y_m, yaw_rad=ag.yaw_rad, lane_id=ag.lane_id)
+        if lane is None or not lane.roundabout:
+            return None
+        rb = {ln.id for ln in obs.map.lanes if ln.roundabout}
+        cands = candidates_for_pose(obs.map, x_m=ag.x_m, y_m=ag.y_m, yaw_rad=ag.yaw_rad,
+                                    lane_id=ag.lane_id, lookahead_m=self.config.lookahead_m)
+        own = closest_heading(cands, ag.yaw_rad) if cands else None
+        if own is None or all(lid in rb for lid in own.lane_ids):
+            return None
+        ring = [c for c in cands if c.lane_ids and all(lid in rb for lid in c.lane_ids)]
+        return ring[0].control_points if ring else None
+
     def _note_stale(self, decision: Optional[Decision], verdict: StaleVerdict) -> None:
         """Count the stale check's verdict and keep it per decision for the log."""
         self.stale = verdict
@@ -331,6 +401,7 @@ class CrossingRules:
         self._counts["stale_steps"] += 1
         self._counts["stale_agent_steps"] += len(verdict.reattended)
         self._counts["go_refused"] += int(bool(verdict.go_refused_for))
+        self._counts["brake_refused"] += int(bool(verdict.brake_refused_for))
         rec = self.stale_log.get(decision.decision_id)
         if rec is None:
             rec = self.stale_log[decision.decision_id] = StaleRecord(

@@ -351,6 +351,7 @@ class MpcNode(LmpcNode):
                                   "stale_steps": st.stale_steps,
                                   "stale_agent_steps": st.stale_agent_steps,
                                   "go_refused": st.go_refused,
+                                  "brake_refused": st.brake_refused,
                                   "refused_decisions": st.refused_decisions,
                                   "decision_space": self.config.decision_space.describe(),
                                   "over_budget": st.over_budget})

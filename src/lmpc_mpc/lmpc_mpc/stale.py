@@ -21,7 +21,14 @@ controller (``MpcController._stale_check``) applies the verdicts:
   crossing rule (``MpcController._lead_limits``, on its own forecasts) yields to some
   agent: the gap the decision relied on has closed.
 
-The check only ever adds caution: it never refuses a braking bias (it cannot know what
+- on a roundabout lane, with an agent coming onto the ego's path from behind, a braking
+  bias (which brakes the reference to a stop) is not executed: made before the entry, it
+  stopped the ego on the ring, where the car behind ran into it (rab 101 at 1.5 s, rab
+  10034 at 5 s); the MPC's own crossing rule and leaders still brake for what is ahead;
+- approaching a roundabout on a road, a ring agent whose own forecast leaves the ring is
+  also kept clear of along the ring (``CrossingRules._ring_alternative``).
+
+Elsewhere the check only adds caution: it never refuses a braking bias (it cannot know what
 the decision brakes for; a version that refused a braking whose stop would land in a
 moving vehicle's zone fixed usi 14 at 2.5 s but refused an emergency braking for a
 pedestrian in si 20: docs/lmpc_mpc.md, "Stale decisions").
@@ -54,17 +61,23 @@ class StaleVerdict:
     """Agents in the target lane that closed the gap a decision's lane change relied on
     (``lane_change_gap``): the ego keeps its own lane."""
 
+    brake_refused_for: tuple[str, ...] = ()
+    """Agents closing in from behind while the ego is on a roundabout: the decision's
+    braking (to a stop) was not executed there (``MpcController._problem``)."""
+
     @property
     def fired(self) -> bool:
-        return bool(self.reattended or self.go_refused_for or self.lane_change_refused_for)
+        return bool(self.reattended or self.go_refused_for or self.lane_change_refused_for
+                    or self.brake_refused_for)
 
     def labels(self) -> tuple[str, ...]:
         """For ``Control.stale``: the agents fallen back for, then ``go`` if the
         decision's go bias was refused, ``lane_change`` if its lane change was."""
         out = list(dict.fromkeys(self.reattended + self.go_refused_for
-                                 + self.lane_change_refused_for))
+                                 + self.lane_change_refused_for + self.brake_refused_for))
         return tuple(out + (["go"] if self.go_refused_for else [])
-                     + (["lane_change"] if self.lane_change_refused_for else []))
+                     + (["lane_change"] if self.lane_change_refused_for else [])
+                     + (["brake"] if self.brake_refused_for else []))
 
 
 LANE_CHANGE_S = 3.0
@@ -113,7 +126,7 @@ class StaleRecord:
         self.steps += 1
         self.go_refused_steps += int(bool(verdict.go_refused_for))
         self.agents.extend(a for a in verdict.labels()
-                           if a not in ("go", "lane_change") and a not in self.agents)
+                           if a not in ("go", "lane_change", "brake") and a not in self.agents)
 
     def as_dict(self) -> dict[str, Any]:
         return {"decision_id": self.decision_id, "first_s": round(self.first_s, 3),

@@ -343,7 +343,9 @@ class Control(LmpcMessage):
     stale: tuple[Ident, ...] = Field(default=(), max_length=1000)
     """What the MPC's stale-decision check overrode on this step (``lmpc_mpc.stale``): the
     agents it re-attended with its own forecast or refused a "go" for, then ``go`` when
-    it refused the decision's go bias. Empty: the decision in force held (or none)."""
+    it refused the decision's go bias (``lane_change``: its lane change, ``brake``: its
+    braking on a roundabout with a car closing in from behind). Empty: the decision in
+    force held (or none)."""
 
 
 # --- episode -----------------------------------------------------------------------------
