@@ -59,6 +59,10 @@ _HOLD_INTO_M = 1.0
 """A crossing the ego cannot clear before the agent arrives, and whose physical zone (the
 safety gap braked into) a hard stop now overshoots by at most this, is yielded to by
 stopping where the ego is, not committed to (``_lead_limits``) [m]."""
+_HOLD_SPEED_MPS = 1.5
+"""... and only while the ego creeps (at most this fast): a moving ego at the edge commits
+as before (usi 121 at 5 s, usi 14 at 2.5 s: held inside the junction, it left its route
+on restarting; the car it had committed in front of braked for it) [m/s]."""
 _LANE_CHANGE_AHEAD_M = 25.0
 """A decision's curve that is in another lane this far ahead is a lane change."""
 _COMFORT_DECEL_MPS2 = 3.0
@@ -210,7 +214,8 @@ class CrossingRules:
             stop_in_m = hard_m - (s_enter + into_gap)
             clears = stop_in_m > 0.0 or in_time
             since = self._committed.get(oid)
-            if k_first <= n and not in_time and 0.0 < stop_in_m <= _HOLD_INTO_M:
+            if k_first <= n and not in_time and 0.0 < stop_in_m <= _HOLD_INTO_M \
+                    and v0 <= _HOLD_SPEED_MPS:
                 # at the zone's edge, slow (a hard stop ends at most _HOLD_INTO_M inside
                 # it), and unable to clear it before the agent arrives: stop here, do not
                 # commit. "Cannot stop before it" sent an ego creeping at 1 m/s 0.5 m
