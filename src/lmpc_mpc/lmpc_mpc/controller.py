@@ -237,6 +237,8 @@ class MpcController(CrossingRules):
         sim time, steps, agents, go refused steps): for the decision log."""
         self._yielded: list[str] = []
         """Agents the crossing rule of the last ``_lead_limits`` call yielded to."""
+        self._last_yield: tuple[float, frozenset[str]] = (-math.inf, frozenset())
+        """(sim time, agents) the crossing rule yielded to on its last step with obstacles."""
         self._leaders: list[tuple[str, float]] = []
         """Agents followed as leaders on the last step, with the reference's limit behind
         them (the least over the horizon, m along the path)."""
@@ -296,6 +298,7 @@ class MpcController(CrossingRules):
         self._plan = self._plan_pred = None
         self._plan_age = 0
         self._committed.clear()
+        self._last_yield = (-math.inf, frozenset())
         self._lane_change_refused.clear()
         self._floor_until.clear()
         self._hedge_until.clear()

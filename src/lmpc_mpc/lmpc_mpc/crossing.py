@@ -62,7 +62,10 @@ stopping where the ego is, not committed to (``_lead_limits``) [m]."""
 _HOLD_SPEED_MPS = 1.5
 """... and only while the ego creeps (at most this fast): a moving ego at the edge commits
 as before (usi 121 at 5 s, usi 14 at 2.5 s: held inside the junction, it left its route
-on restarting; the car it had committed in front of braked for it) [m/s]."""
+on restarting; the car it had committed in front of braked for it) [m/s]. A creeping ego
+that yielded to the agent on the step before keeps yielding however far the zone's edge
+has come past it (no yield / commit flicker; ``_HOLD_INTO_M`` bounds only the first
+yield)."""
 _LANE_CHANGE_AHEAD_M = 25.0
 """A decision's curve that is in another lane this far ahead is a lane change."""
 _COMFORT_DECEL_MPS2 = 3.0
@@ -97,6 +100,7 @@ class CrossingRules:
     _counts: dict[str, int]
     _committed: dict[str, float]
     _yielded: list[str]
+    _last_yield: tuple[float, frozenset[str]]
     _leaders: list[tuple[str, float]]
     _followers: list[str]
     _beside: set[int]
@@ -194,6 +198,10 @@ class CrossingRules:
         v0 = self._ego_v_mps
         comfort_m = v0 ** 2 / (2.0 * _COMFORT_DECEL_MPS2)
         hard_m = v0 ** 2 / (2.0 * _HARD_DECEL_FRACTION * veh.max_decel_mps2)
+        last_t, last_yielded = self._last_yield
+        # the agents yielded to on the step before (not older: a step without obstacles
+        # leaves ``_yielded`` as it was)
+        kept = last_yielded if 0.0 < self._now_s - last_t <= 1.5 * cfg.dt_s else frozenset()
         self._yielded = []
         for oid, s_enter, s_exit, k_first, k_last in crossing:
             # never plan to stop inside another crossing agent's zone (blocking the
@@ -214,13 +222,16 @@ class CrossingRules:
             stop_in_m = hard_m - (s_enter + into_gap)
             clears = stop_in_m > 0.0 or in_time
             since = self._committed.get(oid)
-            if k_first <= n and not in_time and 0.0 < stop_in_m <= _HOLD_INTO_M \
-                    and v0 <= _HOLD_SPEED_MPS:
+            if k_first <= n and not in_time and v0 <= _HOLD_SPEED_MPS and 0.0 < stop_in_m \
+                    and (stop_in_m <= _HOLD_INTO_M or _agent_of(oid) in kept):
                 # at the zone's edge, slow (a hard stop ends at most _HOLD_INTO_M inside
-                # it), and unable to clear it before the agent arrives: stop here, do not
-                # commit. "Cannot stop before it" sent an ego creeping at 1 m/s 0.5 m
-                # inside an oncoming car's zone margin across the bike and the car it had
-                # just waited for (si 110 at a 1.5 s latency, dev seeds)
+                # it, or the agent was yielded to on the step before), and unable to clear
+                # it before the agent arrives: stop here, do not commit. "Cannot stop
+                # before it" sent an ego creeping at 1 m/s 0.5 m inside an oncoming car's
+                # zone margin across the bike and the car it had just waited for (si 110
+                # at a 1.5 s latency, dev seeds); held for two steps, the ego crept 1.06 m
+                # in as the oncoming car's zone edge came towards it, committed, and met
+                # the car 2.6 s later in the turn (si 20, lmpc-rules-enc, latency 0)
                 limit[: k_last + 1] = np.minimum(limit[: k_last + 1], s_enter)
                 self._yielded.append(_agent_of(oid))
                 self._committed.pop(oid, None)
@@ -256,6 +267,7 @@ class CrossingRules:
             # stay out of the conflict zone until it has left (plus one headway)
             limit[: k_last + 1] = np.minimum(limit[: k_last + 1], s_enter)
             self._yielded.append(_agent_of(oid))
+        self._last_yield = (self._now_s, frozenset(self._yielded))
         return None if not np.any(np.isfinite(limit)) else limit
 
     def _time_along(self, s_m: float) -> float:
