@@ -59,13 +59,18 @@ _HOLD_INTO_M = 1.0
 """A crossing the ego cannot clear before the agent arrives, and whose physical zone (the
 safety gap braked into) a hard stop now overshoots by at most this, is yielded to by
 stopping where the ego is, not committed to (``_lead_limits``) [m]."""
+_HOLD_KEPT_INTO_M = 2.0
+"""The same bound for an agent yielded to on the step before: the forecast zone's edge
+jitters by +-0.5 m from step to step with the ego standing still, and at 1.0 m the ego
+flickered between yield and commit and committed into the turn 2.6 s ahead of the
+oncoming car (si 20 `lmpc-rules-enc` at latency 0: edge 0.86 -> 1.06 m past the stop,
+then a collision). Not unbounded: an edge that jumps 4-6 m past a standing ego (a forecast
+changing its lane) then held it deep in the junction, and it left its route on
+restarting (usi 16 `mpc`) [m]."""
 _HOLD_SPEED_MPS = 1.5
 """... and only while the ego creeps (at most this fast): a moving ego at the edge commits
 as before (usi 121 at 5 s, usi 14 at 2.5 s: held inside the junction, it left its route
-on restarting; the car it had committed in front of braked for it) [m/s]. A creeping ego
-that yielded to the agent on the step before keeps yielding however far the zone's edge
-has come past it (no yield / commit flicker; ``_HOLD_INTO_M`` bounds only the first
-yield)."""
+on restarting; the car it had committed in front of braked for it) [m/s]."""
 _LANE_CHANGE_AHEAD_M = 25.0
 """A decision's curve that is in another lane this far ahead is a lane change."""
 _COMFORT_DECEL_MPS2 = 3.0
@@ -223,15 +228,14 @@ class CrossingRules:
             clears = stop_in_m > 0.0 or in_time
             since = self._committed.get(oid)
             if k_first <= n and not in_time and v0 <= _HOLD_SPEED_MPS and 0.0 < stop_in_m \
-                    and (stop_in_m <= _HOLD_INTO_M or _agent_of(oid) in kept):
+                    and stop_in_m <= (_HOLD_KEPT_INTO_M if _agent_of(oid) in kept
+                                      else _HOLD_INTO_M):
                 # at the zone's edge, slow (a hard stop ends at most _HOLD_INTO_M inside
-                # it, or the agent was yielded to on the step before), and unable to clear
-                # it before the agent arrives: stop here, do not commit. "Cannot stop
-                # before it" sent an ego creeping at 1 m/s 0.5 m inside an oncoming car's
-                # zone margin across the bike and the car it had just waited for (si 110
-                # at a 1.5 s latency, dev seeds); held for two steps, the ego crept 1.06 m
-                # in as the oncoming car's zone edge came towards it, committed, and met
-                # the car 2.6 s later in the turn (si 20, lmpc-rules-enc, latency 0)
+                # it, _HOLD_KEPT_INTO_M if the agent was yielded to on the step before),
+                # and unable to clear it before the agent arrives: stop here, do not
+                # commit. "Cannot stop before it" sent an ego creeping at 1 m/s 0.5 m
+                # inside an oncoming car's zone margin across the bike and the car it had
+                # just waited for (si 110 at a 1.5 s latency, dev seeds)
                 limit[: k_last + 1] = np.minimum(limit[: k_last + 1], s_enter)
                 self._yielded.append(_agent_of(oid))
                 self._committed.pop(oid, None)
