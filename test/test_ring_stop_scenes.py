@@ -8,9 +8,13 @@
   ego's entry; the stale check now also keeps clear of it along the ring;
 - si 110 at 1.5 s: creeping at the edge of an oncoming car's zone, the crossing rule
   committed ("cannot stop before it") across a bike and a car it could not clear; it
-  now stops there.
+  now stops there;
+- si 20, ``lmpc-rules-enc`` at latency 0 (Table II): standing at that edge, the zone's
+  edge jittered past the 1.0 m bound and the ego flickered from yield to commit, then
+  met ``onc3`` in the turn; an agent yielded to on the step before is now held up to
+  2.0 m (``_HOLD_KEPT_INTO_M``).
 
-All four collided on main at 3d6a69d."""
+The first four collided on main at 3d6a69d, the fifth with only the zone-edge stop."""
 from __future__ import annotations
 
 import tempfile
@@ -42,3 +46,12 @@ def test_scene_reaches_without_collision(family: str, seed: int, latency_s: floa
     if (family, seed) == ("rab", 112):
         # the ring car was kept clear of along the ring while the first decision held
         assert any("circ0" in rec.agents for rec in wiring.controller.stale_log.values())
+
+
+@pytest.mark.slow
+def test_creeping_ego_keeps_yielding_at_the_zone_edge() -> None:
+    work = Path(tempfile.mkdtemp(prefix="lmpc-edge-"))
+    wiring = methods.build(SceneSpec("lmpc-rules-enc", "si", 20, log_path=work / "log.jsonl"))
+    result = run_episode(SumoSim(work_dir=work / "scenes"), family="si", seed=20,
+                         controller=wiring.controller, planner=wiring.planner)
+    assert result.outcome == "reached", (result.outcome, result.detail)
