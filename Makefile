@@ -28,11 +28,11 @@ $(STAMP): $(SETUPS)
 demo: install
 	$(PY) scripts/run_graph.py --scenario usi --seed 0 --planner rules --clock sync
 
-# The paper's Table I: 5 families x 25 seeds x {mpc, lmpc-rules, dqn}, in-process, one worker
-# per core. dqn: the committed policies/dqn-<family>.npz (numpy only; docs/RL.md).
+# The paper's Table I: 5 families x 25 seeds x every row, in-process, one worker per core.
+# dqn / ppo / sac / adp: the committed policies/*.npz (numpy only; docs/RL.md).
 bench: install
 	$(PY) scripts/benchmark.py --families si,usi,lane,rab,eoa --seeds 0-24 \
-		--methods mpc,lmpc-rules,dqn --out runs/bench
+		--methods mpc,dqn,ppo,sac,adp,lmpc-rules --out runs/bench
 
 # Re-train the committed learned planners, DQN, PPO and SAC for each family (docs/RL.md,
 # "Measured"): needs the rl extra (pip install -e '.[rl]': skrl on CPU JAX). One env per run
