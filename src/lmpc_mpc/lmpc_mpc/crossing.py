@@ -359,27 +359,20 @@ class CrossingRules:
             # seen it): one it attends it predicts itself, as the reasoner's gap check does
             ring = self._ring_alternative(obs, ag) if entering and ag.id not in preds \
                 else None
-            if ring is not None and ag.id + RING_SUFFIX not in placed:
+            alt = None if ring is None or ag.id + RING_SUFFIX in placed else \
+                self._forecast_on_path(ag.id + RING_SUFFIX, ag, ring, obs, line, reach)
+            if alt is not None:
                 # the ego approaches on a road, the agent is on a ring: also kept clear
                 # of along the ring (it may go on past the ego's entry)
-                alt = self._zone_forecast(ag.id + RING_SUFFIX, ag, ring, obs)
-                s_k, d_k = line.project_many(alt)
-                lat = 0.5 * (veh.width_m + ag.width_m) + cfg.safety_lateral_gap_m
-                if on_path(s_k, d_k, lateral_clear_m=lat, reach_m=reach,
-                           path_length_m=line.length_m):
-                    obstacles.append(Obstacle(ag.id + RING_SUFFIX, alt, ag.length_m,
-                                              ag.width_m))
-                    speeds.append(ag.v_mps)
-                    added.append(ag.id)
+                obstacles.append(Obstacle(ag.id + RING_SUFFIX, alt, ag.length_m, ag.width_m))
+                speeds.append(ag.v_mps)
+                added.append(ag.id)
             if ag.id in in_ids and (ag.id not in preds or ag.id + OWN_SUFFIX in placed):
                 continue  # already avoided along the MPC's own forecast
             own = self._baseline_curve(obs, ag) if ag.v_mps >= 0.05 else None
             name = ag.id + OWN_SUFFIX if ag.id in placed else ag.id
-            mine = self._zone_forecast(name, ag, own, obs)
-            s_k, d_k = line.project_many(mine)
-            lat = 0.5 * (veh.width_m + ag.width_m) + cfg.safety_lateral_gap_m
-            if not on_path(s_k, d_k, lateral_clear_m=lat, reach_m=reach,
-                           path_length_m=line.length_m):
+            mine = self._forecast_on_path(name, ag, own, obs, line, reach)
+            if mine is None:
                 continue
             theirs = placed.get(ag.id)
             if theirs is not None and float(np.max(np.hypot(*(mine - theirs.xy_m).T))) \
@@ -389,6 +382,19 @@ class CrossingRules:
             speeds.append(ag.v_mps)
             added.append(ag.id)
         return tuple(added)
+
+    def _forecast_on_path(self, name: str, ag: Agent,
+                          curve: Optional[Sequence[Sequence[float]]],
+                          obs: Observation, line: _Polyline, reach: float
+                          ) -> Optional[np.ndarray]:
+        """The agent's zone forecast along ``curve`` (``_zone_forecast``) if it enters the
+        ego's path corridor within ``reach`` in the horizon, else None."""
+        cfg = self.config
+        fc = self._zone_forecast(name, ag, curve, obs)
+        s_k, d_k = line.project_many(fc)
+        lat = 0.5 * (self.vehicle.width_m + ag.width_m) + cfg.safety_lateral_gap_m
+        on = on_path(s_k, d_k, lateral_clear_m=lat, reach_m=reach, path_length_m=line.length_m)
+        return fc if on else None
 
     def _ring_alternative(self, obs: Observation, ag: Agent
                           ) -> Optional[tuple[tuple[float, float], ...]]:
