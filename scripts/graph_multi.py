@@ -33,6 +33,10 @@ MULTI_PLANNERS = ("rules", "openai", "local", "replay", "none")
 coordination: refused)."""
 COORDINATOR_BACKENDS = ("rules", "openai", "local", "replay")
 LLM_PLANNERS = ("openai", "local", "replay")
+PEER_WAIT_SYNC_S = 2.0
+"""Sync clock, ``distributed``: wall s a planner waits for its peers' statuses of its step
+(default 0.2 s). A planner that died costs its peers this per step until it has been
+silent for 0.5 s sim (5 steps, ~10 s wall), then it no longer takes part."""
 
 
 def add_args(ap: argparse.ArgumentParser) -> None:
@@ -183,6 +187,11 @@ def node_specs(args: argparse.Namespace, run_dir: Path
                 "use_sim_time": True, "backend": args.planner, "run_dir": str(ego_dir),
                 "ego_id": eid, "ego_ids": ",".join(ids), "coordination": args.coordination,
                 "profile_file": str(run_dir / f"profile_planner_{eid}.json")}
+            if args.clock == "sync" and args.coordination == "distributed":
+                # the bridge waits for every planner: a peer's status is late, not lost
+                # (its 0.2 s default ran out under CI load and the egos resolved on the
+                # statuses of different steps)
+                planner["assembly_wait_s"] = PEER_WAIT_SYNC_S
             config = ego_planner_config(args, eid, ego_dir)
             if config is not None:
                 planner["config_file"] = str(config)

@@ -6,6 +6,8 @@ A planner of a multi-ego graph started with ``coordination`` ``distributed`` or
 - publishes its ``EgoStatus`` on the shared ``/coordination/status`` every step (before
   its decision and its planner status, so the peers and the coordinator hear it before
   the bridge steps on);
+- publishes a last status, ``done``, when its ego's ``episode`` says the ego left the
+  episode (the peers stop waiting for it);
 - subscribes ``/coordination/status`` (the peers') and ``/coordination/directive``
   (the coordinator's). A directive out of schema is dropped by the codec, a directive
   for an unknown ego by the link: both counted as ``directives_refused`` (diagnostics)
@@ -27,7 +29,7 @@ from lmpc_msgs_py import topics
 from lmpc_msgs_py.base_node import JsonPublisher, LmpcNode
 from lmpc_msgs_py.codec import DecodeError, decode
 from lmpc_msgs_py.coordination import Directive, EgoStatus
-from lmpc_msgs_py.messages import AgentArray, Decision
+from lmpc_msgs_py.messages import AgentArray, Decision, EpisodeStatus
 from lmpc_msgs_py.observation import Observation
 from lmpc_msgs_py.vocabulary import DecisionSpace
 
@@ -50,6 +52,8 @@ class CoordinationWiring:
         self._hold_seq = 0
         self._status_sub = node.json_subscription(EgoStatus, topics.COORD_STATUS,
                                                   self._on_status, shared=True)
+        node.json_subscription(EpisodeStatus, topics.EPISODE, self._on_episode,
+                               lmpc_qos.LATCHED, check_seq=False)
         self._directive_sub = node.create_subscription(
             String, topics.COORD_DIRECTIVE, self._on_directive, lmpc_qos.STREAM)
         self._connect_timer = node.create_timer(0.05, self._connect, clock=wall_clock)
@@ -75,6 +79,13 @@ class CoordinationWiring:
         self.link.on_status(st)
         if self._on_peer is not None and st.ego_id != self.link.ego_id:
             self._on_peer()  # the step this planner holds may be complete now
+
+    def _on_episode(self, ep: EpisodeStatus) -> None:
+        """This ego's episode ended: tell the peers (a ``done`` status), so none waits for
+        a status of it that will not come."""
+        status = self.link.leave(ep.stamp_s)
+        if status is not None:
+            self._status_pub.publish(status)
 
     def ready(self, obs: Observation) -> bool:
         """Publish this step's status (once); whether the peers' statuses are all in."""

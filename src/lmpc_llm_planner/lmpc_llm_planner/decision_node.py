@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 from typing import Any, Optional, Protocol
 
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
 from std_msgs.msg import String
 
@@ -33,7 +34,8 @@ from lmpc_llm_planner.prompt import MAX_INSTRUCTION_CHARS
 STALE_AFTER_S = 0.3
 """Ego state older than this vs /clock (sim time): no new decision (RELIABILITY.md)."""
 ASSEMBLY_WAIT_S = 0.2
-"""Wall time to wait for the agents / signals of an ego state's stamp."""
+"""Wall time to wait for the agents / signals of an ego state's stamp (and, by default, for
+the other inputs a subclass waits on, ``inputs_ready``)."""
 CLOCK_WATCHDOG_S = 2.0
 DIAGNOSTICS_PERIOD_S = 1.0
 POLL_PERIOD_S = 0.02
@@ -57,6 +59,13 @@ class DecisionNode(LmpcNode):
         self.assembler = ObservationAssembler()
         self._pending: Optional[EgoState] = None
         self._pending_deadline = 0.0
+        # sync multi-ego graphs wait longer for the peers' statuses (graph_multi.py): the
+        # bridge waits for every planner, so a peer slowed by a loaded CPU is late, not gone
+        self.assembly_wait_s = float(self.declare_parameter(
+            "assembly_wait_s", ASSEMBLY_WAIT_S, ParameterDescriptor(
+                description="wall s to wait for an ego state's other inputs")).value)
+        if not self.assembly_wait_s > 0:
+            raise ValueError(f"assembly_wait_s must be > 0, got {self.assembly_wait_s}")
         self._status_seq = 0
         self._last_decision_id: Optional[str] = None
         self._decisions = 0
@@ -107,7 +116,7 @@ class DecisionNode(LmpcNode):
         if self._pending is not None:
             self._try_pending(force=True)  # a newer step came: finish the older one first
         self._pending = msg
-        self._pending_deadline = time.monotonic() + ASSEMBLY_WAIT_S
+        self._pending_deadline = time.monotonic() + self.assembly_wait_s
         self._try_pending(force=False)
 
     def _poll(self) -> None:
@@ -124,8 +133,12 @@ class DecisionNode(LmpcNode):
             return
         if obs is None:
             obs = self.assembler.newest(ego)
-        if obs is not None and not force and not self.inputs_ready(obs):
-            return  # e.g. the peers' statuses of this step (multi-ego coordination)
+        if obs is not None and not self.inputs_ready(obs):
+            if not force:
+                return  # e.g. the peers' statuses of this step (multi-ego coordination)
+            self.counters["assembly_wait_expired"] += 1
+            self.log_event("assembly_wait", f"inputs of t={ego.stamp_s:.2f} s still missing "
+                           f"after {self.assembly_wait_s:.1f} s wall: deciding without them")
         self._pending = None
         self._process(ego, obs)
 
@@ -152,7 +165,7 @@ class DecisionNode(LmpcNode):
         self._publish_status(ego.stamp_s)
 
     def inputs_ready(self, obs: Observation) -> bool:
-        """Whether to decide on ``obs`` now (else wait, at most ``ASSEMBLY_WAIT_S``)."""
+        """Whether to decide on ``obs`` now (else wait, at most ``assembly_wait_s``)."""
         return True
 
     def before_decide(self, obs: Observation) -> Observation:

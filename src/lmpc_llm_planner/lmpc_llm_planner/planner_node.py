@@ -103,7 +103,9 @@ class PlannerNode(DecisionNode):
         if self.coordination is not None and run_dir:
             try:
                 (Path(run_dir) / "coordination.json").write_text(json.dumps(
-                    self.coordination.link.stats(), indent=1))
+                    {**self.coordination.link.stats(),
+                     "assembly_wait_expired": self.counters["assembly_wait_expired"]},
+                    indent=1))
             except OSError as exc:
                 self.get_logger().warning(f"could not write coordination.json: {exc}")
         super().destroy_node()

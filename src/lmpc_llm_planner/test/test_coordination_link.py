@@ -52,6 +52,23 @@ def test_waits_for_peers_of_its_step_not_for_one_that_left(link: EgoLink) -> Non
     assert link.waiting_for(6.0) == ()  # silent for 1 s: left
 
 
+def test_an_ego_whose_episode_ended_says_done_and_is_not_waited_for() -> None:
+    ego_1 = EgoLink("ego_1", ["ego_1", "ego_2"], "distributed", load_decision_space())
+    ego_2 = EgoLink("ego_2", ["ego_1", "ego_2"], "distributed", load_decision_space())
+    assert ego_1.leave(1.0) is None  # never reported: nothing to say
+    ego_1._own[1000] = st("ego_1", "AB_0", 10.0, 1.0)
+    ego_2._own = {1000: st("ego_2", "BA_0", 60.0, 1.0), 1100: st("ego_2", "BA_0", 59.0, 1.1)}
+    ego_2.on_status(ego_1._own[1000])
+    assert ego_2.waiting_for(1.1) == ("ego_1",)
+    done = ego_1.leave(1.1)  # reached at 1.1: no status of 1.1 from its planner
+    assert done is not None and done.intent == "done" and done.conflict is None
+    ego_2.on_status(done)
+    assert ego_2.waiting_for(1.1) == () and ego_2.waiting_for(1.2) == ()
+    # ego_2 resolves on its own newest status (not one step back) beside ego_1's "done"
+    assert [(s.ego_id, s.stamp_s, s.intent) for s in ego_2.complete_set(1.2)] == [
+        ("ego_2", 1.1, "approach"), ("ego_1", 1.1, "done")]
+
+
 def test_directives_for_unknown_egos_are_refused_and_counted() -> None:
     link = EgoLink("ego_1", ["ego_1", "ego_2"], "central", load_decision_space())
     assert link.on_directive(directive("ego_7")) is not None

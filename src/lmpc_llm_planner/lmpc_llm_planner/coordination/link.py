@@ -13,8 +13,9 @@ ego, with the same pieces (``EgoCoordination``, ``rules.resolve``):
   died). Every ego therefore resolves on the same statuses (one step older than its own
   observation when a peer's status of this step is late), so they agree on who goes
   first. The planner node waits for the peers' statuses of its step (``waiting_for``, at
-  most its assembly wait of 0.2 s wall): in sync mode they come within milliseconds, so
-  the egos resolve on the statuses of the same step, as in-process;
+  most its assembly wait: 0.2 s wall, 2 s in a sync graph): in sync mode they usually
+  come within milliseconds, so the egos resolve on the statuses of the same step, as
+  in-process;
 - ``central``: a directive for this ego is followed when it arrives; the coordinator is
   **silent** when no directive (to any ego) came for ``ttl_s`` of sim time (none yet: the
   first ``ttl_s`` of the episode count as not silent). An ego that then sees a conflict
@@ -125,6 +126,17 @@ class EgoLink:
             del self._own[old]
         return st
 
+    def leave(self, stamp_s: float) -> Optional[EgoStatus]:
+        """This ego's episode ended at ``stamp_s`` (reached, collided, ...): its last status,
+        ``done`` and without a conflict, for the peers (None: it never reported)."""
+        if not self._own:
+            return None
+        last = self._own[max(self._own)]
+        st = last.model_copy(update={"stamp_s": stamp_s, "seq": last.seq + 1,
+                                     "intent": "done", "conflict": None})
+        self._own[_key(stamp_s)] = st
+        return st
+
     def waiting_for(self, now: float) -> tuple[str, ...]:
         """``distributed``: the peers whose status of this stamp is still missing (active
         ones, and, during the first ``PEER_ACTIVE_S * 2`` of the episode, the ones not heard
@@ -138,9 +150,18 @@ class EgoLink:
             if not store:
                 if now < 2 * PEER_ACTIVE_S:
                     out.append(eid)
-            elif max(store) >= _key(now - PEER_ACTIVE_S) and k not in store:
+            elif eid in self._taking_part(now) and k not in store:
                 out.append(eid)
         return tuple(out)
+
+    def _taking_part(self, now: float) -> dict[str, dict[int, EgoStatus]]:
+        """The peers whose status of a stamp the rule set needs: heard from within
+        ``PEER_ACTIVE_S`` and not ``done`` (an ego whose episode ended says so once,
+        ``leave``, and falls silent: waiting for it would cost the assembly wait on each
+        step until it counts as silent; in-process it is simply gone)."""
+        return {eid: store for eid, store in self._peers.items()
+                if store and max(store) >= _key(now - PEER_ACTIVE_S)
+                and store[max(store)].intent != "done"}
 
     def prepare(self, obs: Observation) -> tuple[Optional[EgoStatus], Observation]:
         """This step's status (to publish, None when ``report`` gave it already) and the
@@ -182,9 +203,13 @@ class EgoLink:
         (see the module docstring); without one, its own newest and each peer's newest."""
         active = {eid: store for eid, store in self._peers.items()
                   if store and max(store) >= _key(now - PEER_ACTIVE_S)}
+        taking_part = self._taking_part(now)
+        left = [store[max(store)] for eid, store in sorted(active.items())
+                if eid not in taking_part]  # done (the rule set passes over it)
         for k in sorted(self._own, reverse=True):
-            if all(k in store for store in active.values()):
-                return [self._own[k], *(active[eid][k] for eid in sorted(active))]
+            if all(k in store for store in taking_part.values()):
+                return [self._own[k], *(taking_part[eid][k] for eid in sorted(taking_part)),
+                        *left]
         own = self._own[max(self._own)]
         return [own, *(store[max(store)] for _, store in sorted(active.items()))]
 
