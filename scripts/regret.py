@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import math
 import statistics
@@ -52,18 +53,26 @@ from lmpc_scripts.method_oracle import (
     score_forked,
 )
 
+PARTS = ("reference", "bias", "weights", "attention")
+PART_FIELDS = {"reference": ("ego_trajectory",), "bias": ("accel_interval", "steer_interval"),
+               "weights": ("weights",), "attention": ("attention", "agent_predictions")}
+"""The ``Decision`` fields of each part of a decision."""
 COLUMNS = ("family", "seed", "t_s", "mode", "chosen", "best", "chosen_score", "best_score",
-           "regret", "parts", "options", "repeat_diff", "wall_s")
+           "regret", "parts", *(f"gain_{p}" for p in PARTS), "options", "repeat_diff",
+           "wall_s")
 """``chosen``: the option the chosen decision equals in content, ``chosen`` if none does
 (``none``: the planner decided nothing at the instant, the oracle's ``none``); ``best``:
 the best candidate (``chosen`` itself on a tie); ``parts``: what the best differs in
 (reference / bias / weights / attention, ``+``-joined; empty when regret is 0; ``other``
 when it has the chosen decision's content in all four, e.g. ``none`` against a decision
 with the baseline's content);
+``gain_<part>``: for a decision with a finite regret > 0, how much the chosen decision
+gains with only that part taken from the best option (chosen score - score of the
+swapped decision, rolled out like the options; with one part differing, the regret
+itself, no extra rollout); empty where the part does not differ or either decision is
+none. The gains need not add up to the regret (the parts interact);
 ``repeat_diff``: the chosen decision rolled out once more after the options, the
 difference of its score from the first rollout (0 when the branches repeat exactly)."""
-
-PARTS = ("reference", "bias", "weights", "attention")
 TIE_TOL = 1e-9
 """Scores closer than this count as a tie (regret 0)."""
 
@@ -153,13 +162,56 @@ class RegretMixin:
             # "other": the same four parts, e.g. no decision against a decision with the
             # baseline's content, or a kept emergency trajectory
             parts = "+".join(p for p, a, b in zip(PARTS, key, other) if a != b) or "other"
+        donor = None
+        if parts != "":
+            donor = decisions[best_i] if decisions[best_i] is not None else \
+                self._baseline_decision(scene, options, decisions, meta, previous)
+        gains = self._gains(chosen, donor, parts, chosen_score, regret, pricing)
         ctx.rows.append({
             "family": ctx.family, "seed": ctx.seed, "t_s": round(scene.obs.stamp_s, 3),
             "mode": mode, "chosen": name, "best": best, "chosen_score": chosen_score,
             "best_score": best_score, "regret": regret, "parts": parts,
-            "options": len(options), "repeat_diff": _diff(again, chosen_score),
+            **{f"gain_{p}": gains.get(p, "") for p in PARTS}, "options": len(options),
+            "repeat_diff": _diff(again, chosen_score),
             "wall_s": round(time.perf_counter() - t0, 3)})
         return chosen
+
+    def _baseline_decision(self, scene: Scene, options: list[Any],
+                           decisions: list[Optional[Decision]], meta: DecisionMeta,
+                           previous: Optional[Decision]) -> Decision:
+        """A decision with the baseline's content (the option ``route/a<neutral>``: route
+        candidate, neutral bias, normal weights, baseline attention), the parts' donor
+        when the best option is ``none``."""
+        core: Any = self
+        name = f"route/a{core.space.neutral_accel_index}"
+        for o, d in zip(options, decisions):
+            if o.name == name and d is not None:
+                return d
+        full = options_in(scene, core.space, None, dataclasses.replace(
+            self._regret.oracle, max_options=1000, encoding="baseline"))
+        wire = next(o.wire for o in full if o.name == name)
+        assert wire is not None
+        return option_decision(core, scene, wire, meta, previous)
+
+    def _gains(self, chosen: Optional[Decision], best: Optional[Decision], parts: str,
+               chosen_score: float, regret: float, pricing: Any) -> dict[str, float]:
+        """``gain_<part>`` of the row (see ``COLUMNS``)."""
+        differ = [p for p in parts.split("+") if p in PARTS]
+        if chosen is None or best is None or not differ or not 0.0 < regret < math.inf:
+            return {}
+        if len(differ) == 1:
+            return {differ[0]: regret}
+        ctx = self._regret
+        return {p: chosen_score - score_forked(ctx.episode, swap_part(chosen, best, p),
+                                               ctx.oracle, pricing) for p in differ}
+
+
+def swap_part(decision: Decision, donor: Decision, part: str) -> Decision:
+    """``decision`` with ``part`` (one of ``PARTS``) taken from ``donor``, its bookkeeping
+    kept; validated (attention and predictions travel together)."""
+    fields = PART_FIELDS[part]
+    return Decision.model_validate(decision.model_copy(
+        update={f: getattr(donor, f) for f in fields}).model_dump())
 
 
 def _diff(a: float, b: float) -> float:
@@ -268,7 +320,7 @@ def recorded_instants(log: Path) -> Optional[list[float]]:
 
 # --- summary ---------------------------------------------------------------------------
 def _num(x: float) -> Any:
-    return "inf" if math.isinf(x) else round(x, 6)
+    return ("inf" if x > 0 else "-inf") if math.isinf(x) else round(x, 6)
 
 
 def summarise(rows: list[dict[str, Any]], scenes: list[dict[str, Any]]) -> dict[str, Any]:
@@ -279,10 +331,17 @@ def summarise(rows: list[dict[str, Any]], scenes: list[dict[str, Any]]) -> dict[
         rs = [r for r in rows if r["family"] == fam]
         reg = [r["regret"] for r in rs]
         by_part: dict[str, float] = {}
+        recovered = dict.fromkeys(PARTS, 0.0)
+        finite = 0.0
         for r in rs:
             if r["regret"] > 0.0 and math.isfinite(r["regret"]):
+                finite += r["regret"]
                 for p in r["parts"].split("+"):
                     by_part[p] = by_part.get(p, 0.0) + r["regret"]
+                for p in PARTS:
+                    g = r.get(f"gain_{p}", "")
+                    if g != "":  # a part alone recovers at most the regret, at least 0
+                        recovered[p] += min(max(float(g), 0.0), r["regret"])
         worst = sorted(rs, key=lambda r: (-r["regret"], r["seed"], r["t_s"]))[:10]
         fams[fam] = {
             "decisions": len(rs),
@@ -293,6 +352,8 @@ def summarise(rows: list[dict[str, Any]], scenes: list[dict[str, Any]]) -> dict[
             "infinite": sum(math.isinf(x) for x in reg),
             "repeat_diff_max": _num(max((r["repeat_diff"] for r in rs), default=0.0)),
             "regret_by_part": {k: round(v, 4) for k, v in sorted(by_part.items())},
+            "share_recovered_by_part": {p: round(v / finite, 4) if finite > 0 else None
+                                        for p, v in recovered.items()},
             "worst": [{k: (_num(v) if isinstance(v, float) else v) for k, v in r.items()
                        if k != "wall_s"} for r in worst],
         }
@@ -303,12 +364,20 @@ def summary_md(summary: dict[str, Any], run_dir: Path) -> str:
     lines = [f"# Regret of {run_dir}", "",
              "Regret = chosen decision's rollout score - best option's (O.C. units; "
              "docs/ORACLE.md, \"Regret\").", "",
-             "| family | decisions | median | p90 | mean | share 0 | by part |",
-             "|---|---|---|---|---|---|---|"]
+             "| family | decisions | median | p90 | mean | share 0 | by part | recovered by "
+             "the part alone |",
+             "|---|---|---|---|---|---|---|---|"]
     for fam, s in summary["families"].items():
         parts = ", ".join(f"{k} {v}" for k, v in s["regret_by_part"].items())
+        alone = ", ".join(f"{k} {v:.0%}" for k, v in s["share_recovered_by_part"].items()
+                          if v is not None)
         lines.append(f"| {fam} | {s['decisions']} | {s['regret_median']} | {s['regret_p90']} "
-                     f"| {s['regret_mean']} | {s['share_zero']} | {parts} |")
+                     f"| {s['regret_mean']} | {s['share_zero']} | {parts} | {alone} |")
+    lines += ["", "By part: the regret of every decision whose best option differs in that "
+              "part (a decision counts in each part it differs in). Recovered by the part "
+              "alone: the share of the finite regret won back by taking only that part from "
+              "the best option (each decision's gain clipped to [0, its regret]; the shares "
+              "need not add up to 100 %: the parts interact)."]
     for fam, s in summary["families"].items():
         lines += ["", f"## {fam}: the worst decisions", "",
                   "| seed | t (s) | chosen | best | regret | parts |", "|---|---|---|---|---|---|"]

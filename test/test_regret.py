@@ -72,13 +72,48 @@ def test_regret_of_a_two_scene_rules_run(tmp_path: Path) -> None:
         if math.isfinite(chosen):
             assert abs(reg - (chosen - best)) < 1e-5, r
         assert (r["parts"] == "") == (reg == 0.0), r
+        gains = {p: r[f"gain_{p}"] for p in regret.PARTS if r[f"gain_{p}"] != ""}
+        if reg == 0.0 or not math.isfinite(reg):
+            assert not gains, r
+        elif r["chosen"] != "none" and set(r["parts"].split("+")) <= set(regret.PARTS):
+            # a gain for each differing part; one part alone is the whole regret
+            assert set(gains) == set(r["parts"].split("+")), r
+            if len(gains) == 1:
+                assert abs(float(next(iter(gains.values()))) - reg) < 1e-5, r
         assert int(r["options"]) <= SMALLER.max_options
     fam = summary["families"]["rab"]
     assert 0.0 <= fam["share_zero"] <= 1.0 and fam["decisions"] == rab["decisions"]
     assert fam["regret_median"] <= fam["regret_p90"]
     assert len(fam["worst"]) == min(10, fam["decisions"])
+    assert set(fam["share_recovered_by_part"]) == set(regret.PARTS)
+    assert all(v is None or 0.0 <= v <= 1.0 for v in fam["share_recovered_by_part"].values())
     assert [w["regret"] for w in fam["worst"]] == sorted((w["regret"] for w in fam["worst"]),
                                                          reverse=True)
+
+
+def test_swap_part_takes_one_part_of_the_donor() -> None:
+    from lmpc_msgs_py.messages import AgentPrediction, BezierTrajectory, Decision, WeightLevels
+
+    def traj(cid: int) -> BezierTrajectory:
+        return BezierTrajectory(candidate_id=cid, control_points=((0.0, 0.0), (5.0, cid)),
+                                label="x")
+
+    common = dict(stamp_s=1.0, seq=1, source="rules", latency_s=0.0,
+                  space_hash="0" * 16)
+    a = Decision(decision_id="a", ego_trajectory=traj(0), accel_interval=2,
+                 steer_interval=2, **common)
+    b = Decision(decision_id="b", ego_trajectory=traj(1), accel_interval=4, steer_interval=1,
+                 weights=WeightLevels(safety="high"), attention=("v1",),
+                 agent_predictions=(AgentPrediction(agent_id="v1", trajectory=traj(2)),),
+                 **common)
+    s = regret.swap_part(a, b, "bias")
+    assert (s.accel_interval, s.steer_interval) == (4, 1) and s.decision_id == "a"
+    assert s.ego_trajectory == a.ego_trajectory and s.weights == a.weights
+    s = regret.swap_part(a, b, "attention")
+    assert s.attention == ("v1",) and s.agent_predictions == b.agent_predictions
+    assert s.accel_interval == 2
+    assert regret.swap_part(a, b, "reference").ego_trajectory.candidate_id == 1
+    assert regret.swap_part(a, b, "weights").weights.safety == "high"
 
 
 def test_a_folder_without_results_is_a_one_line_error(capsys) -> None:
