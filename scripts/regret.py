@@ -4,6 +4,7 @@ much better the best option of the oracle's decision space would have done (docs
 "Regret").
 
     regret.py RUN_DIR [--method lmpc-rules] [--out RUN_DIR/regret] [--lookahead-s 8]
+              [--workers N] [--executor pool|ray]
 
 Each scene of ``RUN_DIR/results.csv`` is run again in-process with the recorded method
 (``lmpc-rules`` and ``lmpc-oracle`` are deterministic: the same method repeats the run;
@@ -29,6 +30,7 @@ import csv
 import dataclasses
 import json
 import math
+import signal
 import statistics
 import sys
 import tempfile
@@ -37,6 +39,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
+from lmpc_bridge.evaluation.executors import EXECUTORS, ExecutorError
 from lmpc_bridge.evaluation.rows import percentile, scene_log_name
 from lmpc_bridge.evaluation.scenes import FAMILY_MAX_TIME_S, SceneSpec
 from lmpc_llm_planner.scene import Scene
@@ -464,11 +467,33 @@ def _pick_method(rows: list[dict[str, Any]], wanted: Optional[str]) -> str:
     return found[0]
 
 
+_WORKER_SIM: Any = None
+"""The simulation of this worker process (libsumo: one per process), made by its first
+scene."""
+
+
+def regret_job(run_dir: str, row: dict[str, Any], oracle: OracleConfig,
+               instruction: Optional[str]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """``regret_of_scene`` in a worker process of an executor (the local pool or a Ray
+    task; ``lmpc_bridge.evaluation.executors``)."""
+    global _WORKER_SIM
+    if _WORKER_SIM is None:
+        from lmpc_bridge.sim import SumoSim
+
+        methods.prepare()
+        _WORKER_SIM = SumoSim(work_dir=Path(tempfile.mkdtemp(prefix="lmpc-regret-")))
+    return regret_of_scene(Path(run_dir), row, sim=_WORKER_SIM, oracle=oracle,
+                           instruction=instruction)
+
+
 def run(run_dir: Path, *, method: Optional[str] = None, out: Optional[Path] = None,
-        oracle: OracleConfig = OracleConfig(), progress: bool = True) -> dict[str, Any]:
+        oracle: OracleConfig = OracleConfig(), progress: bool = True, workers: int = 1,
+        executor: str = "pool") -> dict[str, Any]:
     """The regret of every scene of ``run_dir`` (one method); writes the files to ``out``
-    (default ``run_dir/regret``) and returns the summary."""
-    from lmpc_bridge.sim import SumoSim
+    (default ``run_dir/regret``) and returns the summary. The scenes run in ``workers``
+    processes of ``executor`` (``pool`` or ``ray``, as ``benchmark.py``'s; the rows do
+    not depend on either). Ctrl-C or SIGTERM: the files get the finished scenes."""
+    from lmpc_bridge.evaluation.executors import make_executor
 
     csv_path = run_dir / "results.csv"
     if not csv_path.is_file():
@@ -483,37 +508,64 @@ def run(run_dir: Path, *, method: Optional[str] = None, out: Optional[Path] = No
         instruction = json.loads((run_dir / "summary.json").read_text()).get("instruction")
     out = out or run_dir / "regret"
     out.mkdir(parents=True, exist_ok=True)
-    methods.prepare()
-    sim = SumoSim(work_dir=Path(tempfile.mkdtemp(prefix="lmpc-regret-")))
     rows: list[dict[str, Any]] = []
     scenes: list[dict[str, Any]] = []
+    todo = []
+    for row in sorted(recorded, key=lambda r: (r["family"], r["seed"])):
+        if row["outcome"] == "error":
+            scenes.append({"family": row["family"], "seed": row["seed"],
+                           "skipped": f"error row: {row['detail']}"})
+        else:
+            todo.append(row)
+    # by name from the package (a Ray worker cannot import this file as __main__)
+    from lmpc_scripts.regret import regret_job as job
+
     t0 = time.monotonic()
-    try:
-        for i, row in enumerate(sorted(recorded, key=lambda r: (r["family"], r["seed"]))):
-            if row["outcome"] == "error":
-                scenes.append({"family": row["family"], "seed": row["seed"],
-                               "skipped": f"error row: {row['detail']}"})
-                continue
-            got, scene = regret_of_scene(run_dir, row, sim=sim, oracle=oracle,
-                                         instruction=instruction)
-            rows += got
-            scenes.append(scene)
-            if progress:
-                print(f"[{i + 1}/{len(recorded)}] {row['family']} seed {row['seed']}: "
-                      f"{len(got)} decisions, regret sum "
-                      f"{sum(r['regret'] for r in got):.3f}, repeats row "
-                      f"{scene['repeats_recorded_row']} ({scene['wall_s']} s; elapsed "
-                      f"{time.monotonic() - t0:.0f} s)", flush=True)
-    finally:
-        sim.close()
+    interrupted = False
+    with make_executor(executor, workers) as ex:
+        signal.signal(signal.SIGTERM, _interrupt)
+        try:
+            calls = [(str(run_dir), row, oracle, instruction) for row in todo]
+            for done, (i, result) in enumerate(ex.results(job, calls), 1):
+                row = todo[i]
+                if isinstance(result, BaseException):
+                    scenes.append({"family": row["family"], "seed": row["seed"],
+                                   "skipped": f"{type(result).__name__}: {result}"})
+                    continue
+                got, scene = result
+                rows += got
+                scenes.append(scene)
+                if progress:
+                    elapsed = time.monotonic() - t0
+                    print(f"[{done}/{len(todo)}] {row['family']} seed {row['seed']}: "
+                          f"{len(got)} decisions, regret sum "
+                          f"{sum(r['regret'] for r in got):.3f}, repeats row "
+                          f"{scene['repeats_recorded_row']} ({scene['wall_s']} s; elapsed "
+                          f"{elapsed:.0f} s, ETA {elapsed / done * (len(todo) - done):.0f} s)",
+                          flush=True)
+        except KeyboardInterrupt:
+            interrupted = True
+            ex.abort()
+            print(f"regret.py: interrupted after {len(scenes)} of {len(recorded)} scenes; "
+                  "writing those", file=sys.stderr, flush=True)
+        finally:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    # the same files whatever order the workers finished in
+    rows.sort(key=lambda r: (r["family"], r["seed"], r["t_s"]))
+    scenes.sort(key=lambda sc: (sc["family"], sc["seed"]))
     summary = summarise(rows, scenes)
     summary.update(run_dir=str(run_dir), method=method, lookahead_s=oracle.lookahead_s,
-                   wall_time_s=round(time.monotonic() - t0, 1))
+                   wall_time_s=round(time.monotonic() - t0, 1), workers=workers,
+                   executor=executor, interrupted=interrupted)
     write_csv(out / "regret.csv", rows)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     (out / "regret.md").write_text(summary_md(summary, run_dir))
     plot(rows, out / "regret.png")
     return summary
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -524,11 +576,19 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--out", type=Path, help="output folder (default RUN_DIR/regret)")
     ap.add_argument("--lookahead-s", type=float, default=OracleConfig.lookahead_s,
                     help="rollout length, s of sim time (default: the oracle's)")
+    ap.add_argument("--workers", type=int, default=1,
+                    help="scenes at once (worker processes / Ray CPUs; default 1)")
+    ap.add_argument("--executor", choices=EXECUTORS, default="pool",
+                    help="pool: local worker processes (default); ray: Ray tasks, on the "
+                         "cluster at $RAY_ADDRESS or a local Ray (docs/CLUSTER.md)")
     args = ap.parse_args(argv)
+    if args.workers < 1:
+        ap.error(f"--workers must be >= 1, got {args.workers}")
     try:
         oracle = OracleConfig(lookahead_s=args.lookahead_s)
-        summary = run(args.run_dir, method=args.method, out=args.out, oracle=oracle)
-    except (RegretError, ValueError) as exc:
+        summary = run(args.run_dir, method=args.method, out=args.out, oracle=oracle,
+                      workers=args.workers, executor=args.executor)
+    except (RegretError, ValueError, ExecutorError) as exc:
         print(f"regret.py: {exc}", file=sys.stderr)
         return 2
     print(summary_md(summary, args.run_dir), end="")

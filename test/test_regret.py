@@ -9,6 +9,8 @@ import math
 import tempfile
 from pathlib import Path
 
+import pytest
+
 from lmpc_bridge.sim import SumoSim
 from lmpc_scripts import benchmark, methods, regret
 from lmpc_scripts import method_oracle as mo
@@ -89,6 +91,30 @@ def test_regret_of_a_two_scene_rules_run(tmp_path: Path) -> None:
     assert all(v is None or 0.0 <= v <= 1.0 for v in fam["share_recovered_by_part"].values())
     assert [w["regret"] for w in fam["worst"]] == sorted((w["regret"] for w in fam["worst"]),
                                                          reverse=True)
+
+
+def test_ray_and_two_pool_workers_give_the_rows_of_one(tmp_path: Path, monkeypatch) -> None:
+    """The executor and the number of workers change where the scenes run, not the files
+    (every column but the wall times)."""
+    pytest.importorskip("ray", reason="ray is not installed (the optional 'ray' extra)")
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)  # a private local Ray, never a cluster
+    run = tmp_path / "run"
+    assert benchmark.main(["--families", "usi,rab", "--seeds", "101", "--methods",
+                           "lmpc-rules", "--workers", "2", "--out", str(run)]) == 0
+
+    def rows(out: Path) -> list[dict[str, str]]:
+        with (out / "regret.csv").open() as fh:
+            return [{k: v for k, v in r.items() if k != "wall_s"} for r in csv.DictReader(fh)]
+
+    one = regret.run(run, oracle=SMALLER, progress=False, out=tmp_path / "one")
+    two = regret.run(run, oracle=SMALLER, progress=False, out=tmp_path / "two", workers=2)
+    ray = regret.run(run, oracle=SMALLER, progress=False, out=tmp_path / "ray", workers=2,
+                     executor="ray")
+    assert rows(tmp_path / "one")
+    assert rows(tmp_path / "one") == rows(tmp_path / "two") == rows(tmp_path / "ray")
+    counts = [[sc["decisions"] for sc in x["scenes"]] for x in (one, two, ray)]
+    assert counts[0] == counts[1] == counts[2], counts
+    assert ray["executor"] == "ray" and ray["workers"] == 2 and not ray["interrupted"]
 
 
 def test_swap_part_takes_one_part_of_the_donor() -> None:
