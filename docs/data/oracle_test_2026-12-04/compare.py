@@ -1,6 +1,7 @@
 """The oracle's rows beside Table I's mpc and lmpc-rules rows (latency 0, main of
 2026-12-04), from the repository root: python3 docs/data/oracle_test_2026-12-04/compare.py
-docs/data/oracle_test_2026-12-04/results.csv [docs/data/oracle_test_2026-12-04/results_usi_rab_5_9.csv]."""
+docs/data/oracle_test_2026-12-04/results.csv [results_usi_rab_5_9.csv, results_lane_5_9.csv
+of the same folder]."""
 import csv, statistics, sys
 ref = {}
 for r in csv.DictReader(open('docs/data/latency_2026-12-04/t1/results.csv')):
