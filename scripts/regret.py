@@ -41,7 +41,7 @@ from typing import Any, Optional, Sequence
 
 from lmpc_bridge.evaluation.executors import EXECUTORS, ExecutorError
 from lmpc_bridge.evaluation.rows import percentile, scene_log_name
-from lmpc_bridge.evaluation.scenes import FAMILY_MAX_TIME_S, SceneSpec
+from lmpc_bridge.evaluation.scenes import FAMILY_MAX_TIME_S, SceneSpec, raise_interrupt
 from lmpc_llm_planner.scene import Scene
 from lmpc_llm_planner.validation import DecisionMeta
 from lmpc_msgs_py.messages import Decision
@@ -523,7 +523,7 @@ def run(run_dir: Path, *, method: Optional[str] = None, out: Optional[Path] = No
     t0 = time.monotonic()
     interrupted = False
     with make_executor(executor, workers) as ex:
-        signal.signal(signal.SIGTERM, _interrupt)
+        signal.signal(signal.SIGTERM, raise_interrupt)
         try:
             calls = [(str(run_dir), row, oracle, instruction) for row in todo]
             for done, (i, result) in enumerate(ex.results(job, calls), 1):
@@ -562,10 +562,6 @@ def run(run_dir: Path, *, method: Optional[str] = None, out: Optional[Path] = No
     (out / "regret.md").write_text(summary_md(summary, run_dir))
     plot(rows, out / "regret.png")
     return summary
-
-
-def _interrupt(signum: int, frame: Any) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:

@@ -236,7 +236,7 @@ def run_scenes(jobs: Sequence[tuple[str, str, int]], settings: RunSettings, *, b
         t0 = time.monotonic()  # after the executor started: the ETA is about the scenes
         # SIGTERM ends a run as Ctrl-C does: the finished scenes are written, not lost
         # (set after the executor started: ray.init installs its own handler)
-        signal.signal(signal.SIGTERM, _raise_interrupt)
+        signal.signal(signal.SIGTERM, raise_interrupt)
         try:
             for i, result in ex.results(fn, calls):
                 m, f, s = jobs[i]
@@ -275,5 +275,7 @@ def _write_log(settings: RunSettings, method: str, family: str, seed: int,
         path.write_text(log)
 
 
-def _raise_interrupt(signum: int, frame: Any) -> None:
+def raise_interrupt(signum: int, frame: Any) -> None:
+    """A signal handler that ends a run as Ctrl-C does (SIGTERM: the finished scenes are
+    written; also scripts/regret.py)."""
     raise KeyboardInterrupt(f"signal {signum}")
