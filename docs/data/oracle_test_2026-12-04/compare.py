@@ -1,7 +1,7 @@
 """The oracle's rows beside Table I's mpc and lmpc-rules rows (latency 0, main of
 2026-12-04), from the repository root: python3 docs/data/oracle_test_2026-12-04/compare.py
-docs/data/oracle_test_2026-12-04/results.csv [results_usi_rab_5_9.csv, results_lane_5_9.csv
-of the same folder]."""
+docs/data/oracle_test_2026-12-04/results*.csv (every result file of the folder; a scene in
+several files: the last one's row)."""
 import csv, statistics, sys
 ref = {}
 for r in csv.DictReader(open('docs/data/latency_2026-12-04/t1/results.csv')):
@@ -11,7 +11,6 @@ print('| Scenario | seed | mpc | lmpc-rules | lmpc-oracle |')
 print('|---|---|---|---|---|')
 fams = ['si', 'usi', 'lane', 'rab', 'eoa']
 cell = lambda r: f"{r['outcome']} {float(r['time_s']):.1f} s, {float(r['overall_cost']):.1f}"
-summ = []
 for f in fams:
     for s in range(25):
         if (f, s) not in orc: continue
