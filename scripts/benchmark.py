@@ -142,6 +142,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     help="planner settings of the LLM methods (default: the packaged "
                          "planner.yaml; planner_local.yaml for lmpc-local), e.g. "
                          "planner_server.yaml for lmpc-openai against a local CPU server")
+    ap.add_argument("--oracle-lookahead-s", type=float, metavar="S",
+                    help="lmpc-oracle: sim time each option is rolled out for (default 8)")
+    ap.add_argument("--oracle-continuation", choices=("none", "rules"),
+                    help="lmpc-oracle: what decides after an option in its rollout: nothing "
+                         "(default) or the rules reasoner (docs/ORACLE.md)")
     ap.add_argument("--coordination", default="none,distributed,central", metavar="MODES",
                     help="multi-ego families (narrow): the coordination modes to run, "
                          "none|distributed|central (docs/MULTI.md)")
@@ -211,6 +216,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             load_planner_config(args.planner_config)
         except PlannerConfigError as exc:
             ap.error(f"--planner-config: {exc}")
+    method_options = oracle_options(args)
+    if method_options:
+        from lmpc_scripts.method_oracle import OracleConfig
+
+        if "lmpc-oracle" not in methods:
+            ap.error("--oracle-* options need --methods lmpc-oracle")
+        try:
+            OracleConfig.from_options(method_options)
+        except ValueError as exc:
+            ap.error(str(exc))
     timing_error = timing_arg_error(args)
     if timing_error:
         ap.error(timing_error)
@@ -268,7 +283,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     settings = RunSettings(
         work_dir=work_dir, scene_file=scene_file, instruction=args.instruction,
         log_dir=str(log_dir), replay=replay, scene_seed=scene_seeds, latency=latency,
-        planner_config=str(args.planner_config.resolve()) if args.planner_config else None)
+        planner_config=str(args.planner_config.resolve()) if args.planner_config else None,
+        method_options=oracle_options(args))
 
     def progress(done: int, row: dict[str, Any], elapsed: float) -> None:
         eta = elapsed / done * (len(jobs) - done)
@@ -340,7 +356,7 @@ def run_instruction_set(args: argparse.Namespace, jobs: list[tuple[str, str, int
             work_dir=work_dir, scene_file=scene_file, instruction=text, log_dir=str(log_dir),
             scene_seed=scene_seeds, latency=latency,
             planner_config=str(args.planner_config.resolve()) if args.planner_config
-            else None)
+            else None, method_options=oracle_options(args))
         rows: list[dict[str, Any]] = []
 
         def progress(done: int, row: dict[str, Any], elapsed: float) -> None:
@@ -387,6 +403,13 @@ def run_instruction_set(args: argparse.Namespace, jobs: list[tuple[str, str, int
         write_outputs(args, normal, args.out / "decisions", time.monotonic() - t0,
                       None, latency=latency)
     return 130 if interrupted else 0
+
+
+def oracle_options(args: argparse.Namespace) -> tuple[tuple[str, Any], ...]:
+    """The ``--oracle-*`` options given, as ``lmpc-oracle``'s method options."""
+    given = (("lookahead_s", args.oracle_lookahead_s),
+             ("continuation", args.oracle_continuation))
+    return tuple((k, v) for k, v in given if v is not None)
 
 
 def cadence_file(args: argparse.Namespace, methods: list[str]) -> Optional[str]:

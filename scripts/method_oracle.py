@@ -31,7 +31,7 @@ import math
 import statistics
 import time
 from dataclasses import dataclass
-from typing import Any, Literal, Optional, Sequence
+from typing import Any, Callable, Literal, Optional, Sequence
 
 from lmpc_bridge.evaluation.scenes import SceneSpec, Wiring
 from lmpc_bridge.metrics import W_ACC, W_DIST, W_TIME, step_ineff, step_pen_acc, step_pen_dist
@@ -51,6 +51,7 @@ from lmpc_scripts import methods
 
 Encoding = Literal["baseline", "rules"]
 Scoring = Literal["window", "episode"]
+Continuation = Literal["none", "rules"]
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,13 @@ class OracleConfig:
     """``window``: the window's penalties over a common estimate of the episode's steps
     plus the progress term (:func:`window_score`); ``episode``: the episode's O.C. as
     it would end with nothing more after the window (:func:`episode_score`)."""
+    continuation: Continuation = "none"
+    """What follows an option in its rollout: ``none``, no further decision (the option
+    until it expires, then the MPC baseline); ``rules``, the rules reasoner's decisions
+    at the planner's cadence (a rollout policy: a manoeuvre that needs several decisions,
+    such as going round a stopped car, is seen whole; ``none`` the option stays the MPC
+    baseline over the whole window, so the oracle is, within its window, never worse
+    than either ``mpc`` or ``lmpc-rules``)."""
 
     def __post_init__(self) -> None:
         if not self.lookahead_s > 0.0:
@@ -80,6 +88,30 @@ class OracleConfig:
             raise ValueError(f"encoding must be baseline or rules, got {self.encoding!r}")
         if self.scoring not in ("window", "episode"):
             raise ValueError(f"scoring must be window or episode, got {self.scoring!r}")
+        if self.continuation not in ("none", "rules"):
+            raise ValueError(f"continuation must be none or rules, got {self.continuation!r}")
+
+    @classmethod
+    def from_options(cls, options: Sequence[tuple[str, Any]]) -> "OracleConfig":
+        """The config of a benchmark run's method options (``SceneSpec.method_options``:
+        ``lookahead_s``, ``continuation``, ...); raises ``ValueError`` naming an unknown
+        option or a bad value."""
+        fields = {f.name: f.type for f in dataclasses.fields(cls)}
+        kwargs: dict[str, Any] = {}
+        for name, value in options:
+            if name not in fields:
+                raise ValueError(f"lmpc-oracle has no option {name!r}; options: "
+                                 f"{', '.join(fields)}")
+            kwargs[name] = value
+        try:
+            for name in ("lookahead_s", "route_speed_cap_mps"):
+                if name in kwargs:
+                    kwargs[name] = float(kwargs[name])
+            if "max_options" in kwargs:
+                kwargs["max_options"] = int(kwargs["max_options"])
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"lmpc-oracle option: {exc}") from None
+        return cls(**kwargs)
 
 
 @dataclass(frozen=True)
@@ -299,16 +331,17 @@ def score_rollout(episode: Any, snap: Any, decision: Optional[Decision], config:
 
 
 def score_forked(episode: Any, decision: Optional[Decision], config: OracleConfig,
-                 pricing: Pricing) -> float:
+                 pricing: Pricing, then: Optional[Callable[[], Any]] = None) -> float:
     """:func:`score_rollout` in a forked copy of the process (``Episode.fork``), from
     the step the episode is in (``begin_step`` done, a planner being asked): no snapshot
     and no restore, so the episode here goes on exactly as if the rollout had not been
-    made (regret.py; docs/BRANCHING.md)."""
+    made (regret.py; docs/BRANCHING.md). ``then``: called in the copy, gives the planner
+    that decides in the rest of the window (None: none)."""
     start_s, start_step = episode.time_s, episode.sim.step_index
 
     def branch(ep: Any) -> float:
         ep.end_step(decision)
-        ep.run(until_s=start_s + config.lookahead_s, planner=None)
+        ep.run(until_s=start_s + config.lookahead_s, planner=None if then is None else then())
         sim = ep.sim
         end = sim.observe().ego.dist_to_target_m if sim.outcome == "running" else 0.0
         r = Rollout(tuple(sim.record().steps[start_step:]), sim.outcome, end)
@@ -342,6 +375,8 @@ class OraclePlanner(PlannerCore):
         """Wall time of each decision (its rollouts included)."""
         self.chosen: list[str] = []
         """The option chosen at each instant."""
+        self._as_rules = False
+        """Set only in a rollout's forked copy: decide as the rules planner does."""
 
     def attach_episode(self, episode: Any) -> None:
         """The episode this planner branches (``lmpc_bridge.episode.Episode.start``)."""
@@ -349,6 +384,8 @@ class OraclePlanner(PlannerCore):
 
     # -- one instant ------------------------------------------------------------------------
     def _decide(self, scene: Scene, mode: Any) -> Optional[Decision]:  # type: ignore[override]
+        if self._as_rules:  # a rollout's continuation (OracleConfig.continuation)
+            return super()._decide(scene, mode)
         if self._episode is None:
             raise RuntimeError("lmpc-oracle needs the episode (Episode.attach_episode): it "
                                "runs in-process only")
@@ -362,9 +399,11 @@ class OraclePlanner(PlannerCore):
         # file, docs/BRANCHING.md)
         pricing = Pricing.at(ep, ep.sim, scene.obs, self.oracle)
         obs = scene.obs
-        scores = [score_forked(ep, None if opt.wire is None else
-                               self._decision(scene, mode, opt.wire), self.oracle, pricing)
-                  for opt in options]
+        scores = []
+        for opt in options:
+            decision = None if opt.wire is None else self._decision(scene, mode, opt.wire)
+            scores.append(score_forked(ep, decision, self.oracle, pricing,
+                                       then=self._continuation(decision)))
         best = min(range(len(options)), key=lambda i: (scores[i], i))
         choice = options[best]
         decision = None if choice.wire is None else self._decision(
@@ -388,6 +427,23 @@ class OraclePlanner(PlannerCore):
         self._log(record)
         return decision
 
+    def _continuation(self, decision: Optional[Decision]) -> Optional[Callable[[], Any]]:
+        """What decides after ``decision`` in its rollout (``OracleConfig.continuation``):
+        with ``rules``, this planner in the forked copy, the option taken as its last
+        decision, deciding as the rules planner from the next instant on and writing no
+        log; nothing after ``none`` (the baseline stays the baseline)."""
+        if self.oracle.continuation == "none" or decision is None:
+            return None
+
+        def rules_from_here() -> "OraclePlanner":
+            self._as_rules = True
+            self._log_path = None
+            self._n += 1  # the option's id was taken in this copy
+            self.last_decision = decision
+            return self
+
+        return rules_from_here
+
     def _decision(self, scene: Scene, mode: Any, wire: LlmDecision | EmergencyDecision, *,
                   commit: bool = False) -> Decision:
         """``wire`` as the planner would hand it over (translated, safety floor applied),
@@ -404,8 +460,12 @@ class OraclePlanner(PlannerCore):
                 "oracle_wall_s_p95": round(w[min(len(w) - 1, int(0.95 * len(w)))], 3)}
 
 
-def build(spec: SceneSpec, oracle: OracleConfig = OracleConfig()) -> Wiring:
-    """``lmpc-oracle``: the oracle planner on the rules planner's settings, and the MPC."""
+def build(spec: SceneSpec, oracle: Optional[OracleConfig] = None) -> Wiring:
+    """``lmpc-oracle``: the oracle planner on the rules planner's settings, and the MPC.
+    ``oracle``: the search (default: ``spec.method_options``, e.g. from ``benchmark.py
+    --oracle-lookahead-s``, over the defaults)."""
+    if oracle is None:
+        oracle = OracleConfig.from_options(spec.method_options)
     base = methods.make_planner("lmpc-rules", None, latency=spec.latency,
                                 planner_config=spec.planner_config, backend=spec.backend)
     planner = OraclePlanner(base.config, base.backend, base.space,
@@ -422,7 +482,8 @@ def build(spec: SceneSpec, oracle: OracleConfig = OracleConfig()) -> Wiring:
             for name in planner.chosen:
                 counts[name] = counts.get(name, 0) + 1
             cells["note"] = (
-                f"oracle: {w['oracle_decisions']} instants, wall per instant median "
+                f"oracle ({oracle.lookahead_s:g} s window, continuation {oracle.continuation}"
+                f"): {w['oracle_decisions']} instants, wall per instant median "
                 f"{w['oracle_wall_s_median']} s, p95 {w['oracle_wall_s_p95']} s; chosen "
                 + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
         return cells

@@ -176,3 +176,66 @@ def test_the_oracle_does_not_do_worse_than_mpc_where_a_better_option_is_known(
     assert oracle.metrics.overall_cost <= mpc.metrics.overall_cost
     assert oracle.metrics.time_s < mpc.metrics.time_s
     assert any(r["chosen"] != "none" for r in log)
+
+
+def test_with_the_rules_continuation_the_rules_option_is_the_rules_planners_own_run(
+        tmp_path: Path) -> None:
+    """``continuation="rules"``: after an option the rules reasoner decides on in its
+    rollout, so the ``rules`` option's rollout is exactly the ``lmpc-rules`` run over the
+    window (eoa seed 100, development: the swerve round the stopped car takes several
+    decisions), and ``none`` stays the MPC baseline."""
+    config = mo.OracleConfig(lookahead_s=6.0, max_options=2, continuation="rules")
+    sim = SumoSim(work_dir=tmp_path / "scenes")
+    log = tmp_path / "o.jsonl"
+    oracle = mo.build(SceneSpec("lmpc-oracle", "eoa", 100, log_path=log), config)
+    try:
+        ep = Episode(sim, family="eoa", seed=100, controller=oracle.controller,
+                     planner=oracle.planner)
+        ep.start()
+        ep.ask(oracle.planner, ep.begin_step())
+        scores = json.loads(log.read_text().splitlines()[0])["scores"]
+        windows = {}
+        for method in ("lmpc-rules", "mpc"):
+            w = methods.build(SceneSpec(method, "eoa", 100))
+            ep = Episode(sim, family="eoa", seed=100, controller=w.controller, planner=w.planner)
+            ep.start()
+            obs = ep.begin_step()
+            pricing = mo.Pricing.at(ep, sim, obs, config)
+            ep.end_step(None if w.planner is None else ep.ask(w.planner, obs))
+            ep.run(until_s=config.lookahead_s)
+            windows[method] = mo.window_score(
+                sim.record().steps, outcome=sim.outcome, start_s=0.0,
+                end_dist_m=sim.observe().ego.dist_to_target_m, route_speed=pricing.speed,
+                episode_steps=pricing.episode_steps)
+    finally:
+        sim.close()
+    assert scores["rules"] == pytest.approx(windows["lmpc-rules"], abs=1e-5)
+    assert scores["none"] == pytest.approx(windows["mpc"], abs=1e-5)
+    assert abs(scores["rules"] - scores["none"]) > 1.0  # the two policies differ here
+
+
+def test_oracle_options_are_checked_by_name_and_value() -> None:
+    cfg = mo.OracleConfig.from_options((("lookahead_s", "16"), ("continuation", "rules")))
+    assert cfg.lookahead_s == 16.0 and cfg.continuation == "rules"
+    with pytest.raises(ValueError, match="no option 'horizon'"):
+        mo.OracleConfig.from_options((("horizon", 3),))
+    with pytest.raises(ValueError, match="continuation"):
+        mo.OracleConfig.from_options((("continuation", "llm"),))
+    with pytest.raises(ValueError, match="lookahead_s"):
+        mo.OracleConfig.from_options((("lookahead_s", "-1"),))
+
+
+def test_the_benchmark_passes_the_oracle_options_and_refuses_them_without_the_oracle(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from lmpc_scripts import benchmark
+
+    with pytest.raises(SystemExit):
+        benchmark.main(["--families", "usi", "--seeds", "100", "--methods", "mpc",
+                        "--oracle-lookahead-s", "16", "--out", str(tmp_path / "a")])
+    assert "need --methods lmpc-oracle" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        benchmark.main(["--families", "usi", "--seeds", "100", "--methods", "lmpc-oracle",
+                        "--oracle-lookahead-s", "0", "--out", str(tmp_path / "b")])
+    assert "lookahead_s must be > 0" in capsys.readouterr().err
+    given = SimpleNamespace(oracle_lookahead_s=None, oracle_continuation="rules")
+    assert benchmark.oracle_options(given) == (("continuation", "rules"),)

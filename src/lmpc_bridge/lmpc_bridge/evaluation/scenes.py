@@ -47,7 +47,9 @@ class SceneSpec:
     ``lmpc-replay`` answers from; ``latency``: the (decision, emergency) latency to
     simulate; ``planner_config``: the planner YAML instead of the packaged one;
     ``backend``: a backend object that replaces the one the method names (a tool that
-    wraps or swaps the backend, e.g. ``planner_stats.py``)."""
+    wraps or swaps the backend, e.g. ``planner_stats.py``); ``method_options``: the
+    method's own settings as (name, value) pairs (e.g. the oracle's lookahead), the
+    method's factory checks them."""
 
     method: str
     family: str
@@ -58,6 +60,7 @@ class SceneSpec:
     latency: Latency = (None, None)
     planner_config: Optional[Path] = None
     backend: Any = None
+    method_options: tuple[tuple[str, Any], ...] = ()
 
 
 @dataclass
@@ -91,6 +94,7 @@ class RunSettings:
     scene_seed: bool = False
     latency: Latency = (None, None)
     planner_config: Optional[str] = None
+    method_options: tuple[tuple[str, Any], ...] = ()
 
 
 _SIM: Any = None  # one SumoSim per worker process (libsumo: one simulation per process)
@@ -150,7 +154,8 @@ def _run_scene(method: str, family: str, seed: int, settings: RunSettings, build
     wiring = build(SceneSpec(
         method=method, family=family, seed=seed, instruction=settings.instruction,
         log_path=log_path, replay=settings.replay, latency=settings.latency,
-        planner_config=Path(settings.planner_config) if settings.planner_config else None))
+        planner_config=Path(settings.planner_config) if settings.planner_config else None,
+        method_options=settings.method_options))
     result = run_episode(sim, family=family, seed=seed, controller=wiring.controller,
                          planner=wiring.planner, max_time_s=max_time_s)
     own = wiring.finish(log_path)
