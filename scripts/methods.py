@@ -217,7 +217,8 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "(policies/adp.npz or $LMPC_POLICY_DIR; docs/RL.md, ADP)",
            "lmpc_scripts.method_adp:build"),
     Method("lmpc-oracle", "the best of <= 32 decisions per planning instant, each rolled "
-           "out 8 s in the scene itself (docs/ORACLE.md; tens of times slower)",
+           "out 8 s (--oracle-lookahead-s) in the scene itself, optionally followed by the "
+           "rules (--oracle-continuation) (docs/ORACLE.md; tens of times slower)",
            "lmpc_scripts.method_oracle:build"),
 )}
 """Every method by name, in ``--list-methods`` order."""
