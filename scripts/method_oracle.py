@@ -75,9 +75,9 @@ class OracleConfig:
     """What follows an option in its rollout: ``none``, no further decision (the option
     until it expires, then the MPC baseline); ``rules``, the rules reasoner's decisions
     at the planner's cadence (a rollout policy: a manoeuvre that needs several decisions,
-    such as going round a stopped car, is seen whole; ``none`` the option stays the MPC
-    baseline over the whole window, so the oracle is, within its window, never worse
-    than either ``mpc`` or ``lmpc-rules``)."""
+    such as going round a stopped car, is seen whole). The option ``none`` stays the MPC
+    baseline over the whole window and ``rules`` becomes the rules planner's own run, so
+    within its window the oracle is never worse than either ``mpc`` or ``lmpc-rules``."""
 
     def __post_init__(self) -> None:
         if not self.lookahead_s > 0.0:
@@ -96,7 +96,7 @@ class OracleConfig:
         """The config of a benchmark run's method options (``SceneSpec.method_options``:
         ``lookahead_s``, ``continuation``, ...); raises ``ValueError`` naming an unknown
         option or a bad value."""
-        fields = {f.name: f.type for f in dataclasses.fields(cls)}
+        fields = [f.name for f in dataclasses.fields(cls)]
         kwargs: dict[str, Any] = {}
         for name, value in options:
             if name not in fields:
