@@ -284,7 +284,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         work_dir=work_dir, scene_file=scene_file, instruction=args.instruction,
         log_dir=str(log_dir), replay=replay, scene_seed=scene_seeds, latency=latency,
         planner_config=str(args.planner_config.resolve()) if args.planner_config else None,
-        method_options=oracle_options(args))
+        method_options=method_options)
 
     def progress(done: int, row: dict[str, Any], elapsed: float) -> None:
         eta = elapsed / done * (len(jobs) - done)
