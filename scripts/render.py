@@ -38,7 +38,8 @@ MULTI_MODES = ("none", "distributed", "central")
 
 
 def run_in_process(family: str, seed: int, method: str, *, work_dir: Path,
-                   max_time_s: Optional[float] = None) -> RunData:
+                   max_time_s: Optional[float] = None,
+                   instruction: Optional[str] = None) -> RunData:
     """``lmpc_bridge.render.run_in_process`` with the method registry's planner and
     controller; ``method`` is one of ``METHODS``."""
     if method not in METHODS:
@@ -46,7 +47,7 @@ def run_in_process(family: str, seed: int, method: str, *, work_dir: Path,
     from lmpc_scripts.methods import build
 
     return render.run_in_process(family, seed, method, build=build, work_dir=work_dir,
-                                 max_time_s=max_time_s)
+                                 max_time_s=max_time_s, instruction=instruction)
 
 
 def shaded_sections(maps: dict) -> tuple[str, ...]:
@@ -97,6 +98,9 @@ def _parse(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     rn.add_argument("--seed", type=int, default=0)
     rn.add_argument("--method", choices=METHODS, default="lmpc-rules")
     rn.add_argument("--max-time-s", type=float, default=None, help="cap an in-process run")
+    rn.add_argument("--instruction", default=None,
+                    help="the user's text for the in-process run's planner (e.g. 'drive "
+                         "aggressively')")
     rn.add_argument("--save-run", type=Path, default=None,
                     help="write the in-process run's episode.json / decisions.jsonl here")
     rn.add_argument("--out", type=Path, default=None, help="PNG (default RUN_DIR/run.png)")
@@ -121,6 +125,9 @@ def _parse(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     args = ap.parse_args(argv)
     if args.command == "run" and (args.run_dir is None) == (args.family is None):
         ap.error("run: give either RUN_DIR or --family (with --seed / --method)")
+    if args.command == "run" and args.instruction is not None and args.run_dir is not None:
+        ap.error("run: --instruction is for an in-process run (--family); a run folder "
+                 "was driven with its own")
     return args
 
 
@@ -138,7 +145,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             else:
                 work_dir = args.work_dir or Path(tempfile.mkdtemp(prefix="lmpc-render-"))
                 run = run_in_process(args.family, args.seed, args.method, work_dir=work_dir,
-                                     max_time_s=args.max_time_s)
+                                     max_time_s=args.max_time_s,
+                                     instruction=args.instruction)
                 default_out = Path(f"{args.family}_{args.seed}_{args.method}_run.png")
                 if args.save_run:
                     print(save_run(run, args.save_run))

@@ -163,6 +163,14 @@ def test_load_run_missing_folder_is_actionable(tmp_path: Path) -> None:
         render.load_run(tmp_path)
 
 
+def test_an_in_process_run_follows_the_instruction(work_dir: Path) -> None:
+    run = render_cli.run_in_process("usi", 0, "lmpc-rules", work_dir=work_dir,
+                                    max_time_s=1.0, instruction="drive conservatively")
+    assert run.decisions and all("careful" in d.reasoning for d in run.decisions.values())
+    with pytest.raises(SystemExit):  # a recorded run was driven with its own instruction
+        render_cli.main(["run", str(work_dir), "--instruction", "drive aggressively"])
+
+
 def test_cli_refuses_an_unknown_method(tmp_path: Path) -> None:
     with pytest.raises(render.RenderError, match="unknown method"):
         render_cli.run_in_process("usi", 0, "lmpc-openai", work_dir=tmp_path)

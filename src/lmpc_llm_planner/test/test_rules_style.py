@@ -26,7 +26,8 @@ def test_aggressive_speeds_up_briskly_on_a_clear_road(road, planner_config, mpc_
                     "drive aggressively")
     assert plan.accel_index == accel_index(inp.accel, AGGRESSIVE_ACCEL_MPS2)
     assert plan.accel_index != mildest_accel(inp.accel)
-    assert "in a hurry" in plan.notes[-1]
+    # held to: at action weight "normal" the MPC would speed up at its own pace
+    assert plan.weights["action"] == "high" and "in a hurry" in plan.notes[-1]
     inp, plan = _go(road_obs(road, v_mps=8.0), planner_config, mpc_config, None)
     assert plan.accel_index == mildest_accel(inp.accel)  # normal: the mildest interval
 
@@ -72,3 +73,20 @@ def test_conservative_slows_down_only_without_a_close_follower(road, planner_con
     inp, plan = _go(road_obs(road, v_mps=12.0), planner_config, mpc_config,
                     "drive conservatively", mode="emergency")
     assert plan.accel_index == neutral(inp.accel)
+
+
+def test_conservative_holds_its_speed_on_a_free_road(road, planner_config, mpc_config):
+    # below 65 % of the limit: the mildest speed-up, held to by the action weight (at
+    # "normal" the MPC tracks the limit on its own: si 120 went 9.7 -> 13.3 m/s)
+    inp, plan = _go(road_obs(road, v_mps=5.0), planner_config, mpc_config,
+                    "drive conservatively")
+    assert plan.accel_index == mildest_accel(inp.accel)
+    assert plan.weights["action"] == "high" and "gently" in plan.notes[-1]
+    # 65-75 %: hold the speed
+    inp, plan = _go(road_obs(road, v_mps=9.7), planner_config, mpc_config,
+                    "drive conservatively")
+    assert plan.accel_index == neutral(inp.accel) and plan.weights["action"] == "high"
+    # without an instruction the MPC keeps its own pull towards the limit
+    inp, plan = _go(road_obs(road, v_mps=5.0), planner_config, mpc_config, None)
+    assert plan.accel_index == mildest_accel(inp.accel)
+    assert plan.weights["action"] == "normal"

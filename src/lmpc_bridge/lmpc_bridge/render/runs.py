@@ -168,20 +168,22 @@ def load_run(run_dir: Path, *, work_dir: Optional[Path] = None) -> RunData:
 
 
 def run_in_process(family: str, seed: int, method: str, *, build: Build, work_dir: Path,
-                   max_time_s: Optional[float] = None) -> RunData:
+                   max_time_s: Optional[float] = None,
+                   instruction: Optional[str] = None) -> RunData:
     """Run one episode of ``method`` in this process (as the benchmark does) and return it
     for drawing; ``build`` makes the method's planner and controller (the method registry's
     factory, ``lmpc_scripts.methods.build``).
 
     ``max_time_s`` caps the episode (outcome ``timeout`` at the cap); None uses the
-    scene's own limit. libsumo runs one simulation per process: the simulation is
+    scene's own limit; ``instruction`` is the user's text for the planner (as
+    ``benchmark.py --instruction``). libsumo runs one simulation per process: the simulation is
     closed before returning.
     """
     from lmpc_bridge.evaluation.scenes import SceneSpec
     from lmpc_bridge.runner import RecordingPlanner, run_episode
     from lmpc_bridge.sim import SumoSim
 
-    wiring = build(SceneSpec(method, family, seed))
+    wiring = build(SceneSpec(method, family, seed, instruction=instruction))
     recorder = RecordingPlanner(wiring.planner) if wiring.planner is not None else None
     sim = SumoSim(work_dir=Path(work_dir))
     try:

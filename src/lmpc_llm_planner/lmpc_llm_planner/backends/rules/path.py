@@ -163,15 +163,28 @@ def go_rule(inp: RuleInputs, plan: Plan) -> None:
         plan.notes.append(plan.hold_speed)
     elif style == "aggressive" and ego.v_mps < AGGRESSIVE_SPEED_FRACTION * limit:
         plan.accel_index = accel_index(inp.accel, AGGRESSIVE_ACCEL_MPS2)
+        # held to by the action weight: at "normal" the MPC speeds up at its own pace,
+        # the same as without an instruction
+        plan.weights["action"] = "high"
         plan.notes.append(f"The way is clear and the user is in a hurry; I speed up "
                           f"briskly towards the {limit:.1f} m/s limit.")
     elif style == "conservative" and ego.v_mps >= CONSERVATIVE_SPEED_FRACTION * limit:
-        if ego.v_mps >= (CONSERVATIVE_SPEED_FRACTION + 0.1) * limit:
+        if slows:
             plan.accel_index = brake_index(inp.accel, 0.0, True)  # the mildest braking
+        # the action weight makes the MPC keep to the bias: at "normal" a neutral bias
+        # let it track the limit (si 120: 9.7 -> 13.3 m/s in one period)
+        plan.weights["action"] = "high"
         plan.notes.append(f"The user asked for careful driving; I keep below "
                           f"{CONSERVATIVE_SPEED_FRACTION:.0%} of the {limit:.1f} m/s limit.")
-    elif ego.v_mps < (CONSERVATIVE_SPEED_FRACTION if style == "conservative"
-                      else 0.8) * limit:
+    elif style == "conservative":
+        # a gentle speed-up (the mildest accelerating interval, held to by the action
+        # weight) instead of the MPC's own pull towards the limit
+        plan.accel_index = mildest_accel(inp.accel)
+        plan.weights["action"] = "high"
+        plan.notes.append(f"The way is clear; the user asked for careful driving, so I "
+                          f"speed up gently towards {CONSERVATIVE_SPEED_FRACTION:.0%} of "
+                          f"the {limit:.1f} m/s limit.")
+    elif ego.v_mps < 0.8 * limit:
         plan.accel_index = mildest_accel(inp.accel)
         if not plan.notes:
             plan.notes.append(
