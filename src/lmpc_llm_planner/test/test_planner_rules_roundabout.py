@@ -94,3 +94,17 @@ def ask_conservative(map_, *, ego_y_m, v_mps, planner_config, mpc_config):
     w, _ = ask_rules(syn.observation(map_, ego, []), planner_config, mpc_config,
                      instruction="drive conservatively")
     return accel_mid(w, mpc_config), w
+
+
+@pytest.mark.parametrize("instruction", ["drive conservatively", "drive aggressively"])
+def test_before_a_roundabout_the_style_speed_is_not_held(
+        entry, planner_config, mpc_config, instruction):
+    """Far out (95 m) at 5 m/s the style still picks its interval, but not with the action
+    weight "high" that holds it on an open road: before a roundabout the entry gap
+    decides, and a held style speed met other gaps (rab training seeds 10000-10049)."""
+    ego = syn.ego_state(x_m=1.6, y_m=-95.0, yaw_rad=NORTH, v_mps=5.0, lane_id="S_in_0") \
+        .model_copy(update={"lane_pos_m": 5.0})
+    w, _ = ask_rules(syn.observation(entry, ego, []), planner_config, mpc_config,
+                     instruction=instruction)
+    assert accel_mid(w, mpc_config) > 0.0, w.reasoning
+    assert w.weight_adjustment.action == "normal", w.reasoning
