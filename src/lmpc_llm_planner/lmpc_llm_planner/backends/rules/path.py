@@ -132,7 +132,9 @@ def path_rule(inp: RuleInputs, plan: Plan, *, committed: bool) -> None:
 
 def go_rule(inp: RuleInputs, plan: Plan) -> None:
     """Rule 6 (when no rule chose the speed): follow a close leader in the path, else
-    speed up below 80 % of the limit or keep the speed."""
+    speed up below 80 % of the limit or keep the speed; with a style (``speed_style``)
+    aggressive speeds up briskly to 95 %, conservative gently to 65 % and holds to 75 %,
+    both held to with the action weight "high" except before a roundabout."""
     scene = inp.scene
     ego = scene.obs.ego
     lane = scene.lanes.get(ego.lane_id or "")
@@ -151,8 +153,9 @@ def go_rule(inp: RuleInputs, plan: Plan) -> None:
         _follow(inp, plan, close)
         return
     style = speed_style(inp, plan)
-    # (the conservative band below brakes only above 75 %; between 65 and 75 % its neutral
-    # bias at "normal" lets the MPC speed up like any other: rab 10049 conservative)
+    # (the conservative band brakes only above 75 %; between 65 and 75 % it holds the
+    # speed, and before a roundabout its neutral bias at "normal" lets the MPC speed up
+    # like any other: the roundabout rule's hold_speed covers that, rab 10049)
     slows = style == "conservative" and \
         ego.v_mps >= (CONSERVATIVE_SPEED_FRACTION + 0.1) * limit
     # the style's speed is held to (action weight "high"; at "normal" the MPC tracks the
