@@ -16,7 +16,7 @@ from typing import Optional
 
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE
 
-from lmpc_llm_planner.route import next_maneuver
+from lmpc_llm_planner.route import Maneuver, next_maneuver
 from lmpc_llm_planner.scene import AgentView
 
 from .emergency import brake_hard, brakes_hard
@@ -153,16 +153,16 @@ def go_rule(inp: RuleInputs, plan: Plan) -> None:
         _follow(inp, plan, close)
         return
     style = speed_style(inp, plan)
-    # (the conservative band brakes only above 75 %; between 65 and 75 % it holds the
-    # speed, and before a roundabout its neutral bias at "normal" lets the MPC speed up
-    # like any other: the roundabout rule's hold_speed covers that, rab 10049)
+    # the conservative band brakes only above 75 %
     slows = style == "conservative" and \
         ego.v_mps >= (CONSERVATIVE_SPEED_FRACTION + 0.1) * limit
     # the style's speed is held to (action weight "high"; at "normal" the MPC tracks the
     # limit whatever the bias) except before a roundabout, where the entry gap decides:
     # held there, a changed arrival met other gaps (rab training seeds 10000-10049: the
-    # style's time order per scene 47 -> 40 of 50)
-    held = not _roundabout_ahead(inp)
+    # style's time order per scene 47 -> 40 of 50); there the roundabout rule's
+    # hold_speed keeps a speed-up it could not slow down from (rab 10049)
+    held = style != "normal" and not _enters_ring(
+        inp, next_maneuver(scene.obs, scene.lanes))
     if plan.hold_speed is not None and not slows:
         # a junction rule found a speed-up unsafe: keep the speed (with the action weight
         # "normal" the MPC would track the speed limit rather than the neutral bias)
@@ -269,18 +269,15 @@ def _junction_ahead(inp: RuleInputs) -> bool:
     man = next_maneuver(scene.obs, scene.lanes, max_distance_m=inp.cfg.junction_attention_m)
     if man is None:
         return False
-    ring = scene.lanes.get(man.link.to_lane)
-    if man.inside_junction or (ring is not None and ring.roundabout):
+    if man.inside_junction or _enters_ring(inp, man):
         return True
     return any(sl.lane_id == man.approach_lane_id and sl.signalized
                for sl in scene.obs.map.stop_lines)
 
 
-def _roundabout_ahead(inp: RuleInputs) -> bool:
-    """The next junction connection on the route (within 200 m) enters a roundabout."""
-    scene = inp.scene
-    man = next_maneuver(scene.obs, scene.lanes)
-    ring = None if man is None else scene.lanes.get(man.link.to_lane)
+def _enters_ring(inp: RuleInputs, man: Optional[Maneuver]) -> bool:
+    """The junction connection ``man`` (None: none ahead) enters a roundabout."""
+    ring = None if man is None else inp.scene.lanes.get(man.link.to_lane)
     return ring is not None and ring.roundabout
 
 
