@@ -5,6 +5,7 @@ much better the best option of the oracle's decision space would have done (docs
 
     regret.py RUN_DIR [--method lmpc-rules] [--out RUN_DIR/regret] [--lookahead-s 8]
               [--workers N] [--executor pool|ray]
+    regret.py --merge REGRET_DIR [REGRET_DIR ...] --out DIR
 
 Each scene of ``RUN_DIR/results.csv`` is run again in-process with the recorded method
 (``lmpc-rules`` and ``lmpc-oracle`` are deterministic: the same method repeats the run;
@@ -22,6 +23,10 @@ Writes OUT/regret.csv (one row per decision), OUT/summary.json, OUT/regret.md an
 OUT/regret.png (regret over time of the scene with the largest total regret, and the
 per-family distribution). Deterministic: the same run gives the same files (but the
 wall-time cells).
+
+``--merge`` writes the same four files for the decisions and scenes of several finished
+regret folders (a long run split over sessions or machines), without re-running
+anything; a scene found in two folders is refused.
 """
 from __future__ import annotations
 
@@ -564,10 +569,76 @@ def run(run_dir: Path, *, method: Optional[str] = None, out: Optional[Path] = No
     return summary
 
 
+_INT_COLUMNS = ("seed", "options")
+_TEXT_COLUMNS = ("family", "mode", "chosen", "best", "parts")
+
+
+def read_regret_csv(path: Path) -> list[dict[str, Any]]:
+    """The rows of a ``regret.csv`` with the types :func:`run` wrote them from (numbers;
+    an empty gain cell stays empty)."""
+    with path.open(newline="") as fh:
+        raw = list(csv.DictReader(fh))
+    out = []
+    for r in raw:
+        row: dict[str, Any] = {}
+        for k in COLUMNS:
+            v = r.get(k)
+            if v is None:
+                raise RegretError(f"{path}: column {k!r} missing")
+            if k in _TEXT_COLUMNS or (k.startswith("gain_") and v == ""):
+                row[k] = v
+            elif k in _INT_COLUMNS:
+                row[k] = int(v)
+            else:
+                row[k] = float(v)
+        out.append(row)
+    return out
+
+
+def merge(dirs: Sequence[Path], out: Path) -> dict[str, Any]:
+    """One set of regret files from several finished regret folders (``run``'s output)."""
+    rows: list[dict[str, Any]] = []
+    scenes: list[dict[str, Any]] = []
+    sources = []
+    for d in dirs:
+        summary_path, csv_path = d / "summary.json", d / "regret.csv"
+        for f in (summary_path, csv_path):
+            if not f.is_file():
+                raise RegretError(f"{f} not found: pass folders written by regret.py")
+        part = json.loads(summary_path.read_text())
+        seen = {(sc["family"], sc["seed"]) for sc in scenes}
+        twice = sorted(f"{sc['family']} {sc['seed']}" for sc in part["scenes"]
+                       if (sc["family"], sc["seed"]) in seen)
+        if twice:
+            raise RegretError(f"{d}: scenes already merged from another folder: "
+                              + ", ".join(twice))
+        scenes += part["scenes"]
+        rows += read_regret_csv(csv_path)
+        keys = ("run_dir", "method", "lookahead_s", "wall_time_s", "workers", "interrupted")
+        sources.append({k: part.get(k) for k in keys})
+    if len({s["lookahead_s"] for s in sources}) > 1 or len({s["method"] for s in sources}) > 1:
+        raise RegretError("the folders differ in method or lookahead: "
+                          + ", ".join(f"{s['method']} {s['lookahead_s']} s" for s in sources))
+    rows.sort(key=lambda r: (r["family"], r["seed"], r["t_s"]))
+    scenes.sort(key=lambda sc: (sc["family"], sc["seed"]))
+    summary = summarise(rows, scenes)
+    summary.update(method=sources[0]["method"], lookahead_s=sources[0]["lookahead_s"],
+                   merged_from=[str(d) for d in dirs], sources=sources)
+    out.mkdir(parents=True, exist_ok=True)
+    write_csv(out / "regret.csv", rows)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    (out / "regret.md").write_text(summary_md(summary, Path(" + ".join(map(str, dirs)))))
+    plot(rows, out / "regret.png")
+    return summary
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("run_dir", type=Path, help="a finished benchmark.py --out folder")
+    ap.add_argument("run_dir", type=Path, nargs="?",
+                    help="a finished benchmark.py --out folder")
+    ap.add_argument("--merge", type=Path, nargs="+", metavar="REGRET_DIR",
+                    help="merge finished regret folders into --out (no re-run)")
     ap.add_argument("--method", help="the lmpc-* method of the run (needed if it has several)")
     ap.add_argument("--out", type=Path, help="output folder (default RUN_DIR/regret)")
     ap.add_argument("--lookahead-s", type=float, default=OracleConfig.lookahead_s,
@@ -580,6 +651,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     args = ap.parse_args(argv)
     if args.workers < 1:
         ap.error(f"--workers must be >= 1, got {args.workers}")
+    if args.merge:
+        if args.run_dir is not None or args.out is None:
+            ap.error("--merge takes regret folders and --out, no RUN_DIR")
+        try:
+            summary = merge(args.merge, args.out)
+        except (RegretError, ValueError, KeyError) as exc:
+            print(f"regret.py: {exc}", file=sys.stderr)
+            return 2
+        print(summary_md(summary, Path(" + ".join(map(str, args.merge)))), end="")
+        return 0
+    if args.run_dir is None:
+        ap.error("RUN_DIR is required (or --merge)")
     try:
         oracle = OracleConfig(lookahead_s=args.lookahead_s)
         summary = run(args.run_dir, method=args.method, out=args.out, oracle=oracle,

@@ -147,3 +147,27 @@ def test_a_folder_without_results_is_a_one_line_error(capsys) -> None:
         assert regret.main([d]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("regret.py: ") and "results.csv" in err and "\n" not in err
+
+
+def test_merging_regret_folders_gives_the_summary_of_one_run(tmp_path: Path, capsys) -> None:
+    """``--merge``: a run split by family over two folders sums up as the whole run did
+    (the committed usi / rab seeds 0-4 regret), and a scene in two folders is refused."""
+    whole = Path(__file__).resolve().parents[1] / "docs/data/regret_rules_2026-12-04"
+    rows = regret.read_regret_csv(whole / "regret.csv")
+    summary = json.loads((whole / "summary.json").read_text())
+    for fam in ("rab", "usi"):
+        part = tmp_path / fam
+        part.mkdir()
+        regret.write_csv(part / "regret.csv", [r for r in rows if r["family"] == fam])
+        scenes = [sc for sc in summary["scenes"] if sc["family"] == fam]
+        (part / "summary.json").write_text(json.dumps(dict(summary, scenes=scenes)))
+    assert regret.main(["--merge", str(tmp_path / "usi"), str(tmp_path / "rab"),
+                        "--out", str(tmp_path / "both")]) == 0
+    merged = json.loads((tmp_path / "both" / "summary.json").read_text())
+    assert merged["families"] == summary["families"]
+    assert merged["scenes"] == summary["scenes"]
+    assert (tmp_path / "both" / "regret.csv").read_text() == (whole / "regret.csv").read_text()
+    capsys.readouterr()
+    assert regret.main(["--merge", str(tmp_path / "usi"), str(tmp_path / "usi"),
+                        "--out", str(tmp_path / "twice")]) == 2
+    assert "usi 0" in capsys.readouterr().err
