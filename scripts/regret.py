@@ -555,16 +555,25 @@ def run(run_dir: Path, *, method: Optional[str] = None, out: Optional[Path] = No
                   "writing those", file=sys.stderr, flush=True)
         finally:
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    # the same files whatever order the workers finished in
+    return write_files(out, rows, scenes, run_dir, run_dir=str(run_dir), method=method,
+                       lookahead_s=oracle.lookahead_s,
+                       wall_time_s=round(time.monotonic() - t0, 1), workers=workers,
+                       executor=executor, interrupted=interrupted)
+
+
+def write_files(out: Path, rows: list[dict[str, Any]], scenes: list[dict[str, Any]],
+                title: Path, **about: Any) -> dict[str, Any]:
+    """regret.csv, summary.json (the summary plus ``about``), regret.md and regret.png in
+    ``out``, rows and scenes sorted (the same files whatever order the scenes finished
+    in); returns the summary."""
     rows.sort(key=lambda r: (r["family"], r["seed"], r["t_s"]))
     scenes.sort(key=lambda sc: (sc["family"], sc["seed"]))
     summary = summarise(rows, scenes)
-    summary.update(run_dir=str(run_dir), method=method, lookahead_s=oracle.lookahead_s,
-                   wall_time_s=round(time.monotonic() - t0, 1), workers=workers,
-                   executor=executor, interrupted=interrupted)
+    summary.update(about)
+    out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "regret.csv", rows)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    (out / "regret.md").write_text(summary_md(summary, run_dir))
+    (out / "regret.md").write_text(summary_md(summary, title))
     plot(rows, out / "regret.png")
     return summary
 
@@ -619,17 +628,13 @@ def merge(dirs: Sequence[Path], out: Path) -> dict[str, Any]:
     if len({s["lookahead_s"] for s in sources}) > 1 or len({s["method"] for s in sources}) > 1:
         raise RegretError("the folders differ in method or lookahead: "
                           + ", ".join(f"{s['method']} {s['lookahead_s']} s" for s in sources))
-    rows.sort(key=lambda r: (r["family"], r["seed"], r["t_s"]))
-    scenes.sort(key=lambda sc: (sc["family"], sc["seed"]))
-    summary = summarise(rows, scenes)
-    summary.update(method=sources[0]["method"], lookahead_s=sources[0]["lookahead_s"],
-                   merged_from=[str(d) for d in dirs], sources=sources)
-    out.mkdir(parents=True, exist_ok=True)
-    write_csv(out / "regret.csv", rows)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    (out / "regret.md").write_text(summary_md(summary, Path(" + ".join(map(str, dirs)))))
-    plot(rows, out / "regret.png")
-    return summary
+    return write_files(out, rows, scenes, merged_title(dirs), method=sources[0]["method"],
+                       lookahead_s=sources[0]["lookahead_s"],
+                       merged_from=[str(d) for d in dirs], sources=sources)
+
+
+def merged_title(dirs: Sequence[Path]) -> Path:
+    return Path(" + ".join(map(str, dirs)))
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -659,7 +664,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         except (RegretError, ValueError, KeyError) as exc:
             print(f"regret.py: {exc}", file=sys.stderr)
             return 2
-        print(summary_md(summary, Path(" + ".join(map(str, args.merge)))), end="")
+        print(summary_md(summary, merged_title(args.merge)), end="")
         return 0
     if args.run_dir is None:
         ap.error("RUN_DIR is required (or --merge)")
