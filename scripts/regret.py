@@ -42,7 +42,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 from lmpc_bridge.evaluation.executors import EXECUTORS, ExecutorError
 from lmpc_bridge.evaluation.rows import percentile, scene_log_name
@@ -123,6 +123,8 @@ class RegretMixin:
             parent(episode)
 
     def _decide(self, scene: Scene, mode: Any) -> Optional[Decision]:
+        if getattr(self, "_judging", False):  # a rollout's continuation (:meth:`_then`)
+            return super()._decide(scene, mode)  # type: ignore[misc]
         core: Any = self
         ctx = self._regret
         if ctx.episode is None:
@@ -150,10 +152,10 @@ class RegretMixin:
         # restore is exact only up to SUMO's bookkeeping outside its state file;
         # docs/BRANCHING.md)
         pricing = Pricing.at(ep, ep.sim, scene.obs, ctx.oracle)
-        chosen_score = score_forked(ep, chosen, ctx.oracle, pricing)
-        scores = [score_forked(ep, d, ctx.oracle, pricing) for d in decisions]
+        chosen_score = self._score(chosen, pricing)
+        scores = [self._score(d, pricing) for d in decisions]
         # the chosen one again, after the options: how exactly the branches repeat
-        again = score_forked(ep, chosen, ctx.oracle, pricing)
+        again = self._score(chosen, pricing)
         base = _baseline_content(scene, core.space)
         key = _content(chosen, base)
         name = next((o.name for o, d in zip(options, decisions)
@@ -209,9 +211,40 @@ class RegretMixin:
             return {}
         if len(differ) == 1:
             return {differ[0]: regret}
+        return {p: chosen_score - self._score(swap_part(chosen, best, p), pricing)
+                for p in differ}
+
+    def _score(self, decision: Optional[Decision], pricing: Any) -> float:
+        """``decision``'s rollout score in a forked copy, under the judge's continuation."""
         ctx = self._regret
-        return {p: chosen_score - score_forked(ctx.episode, swap_part(chosen, best, p),
-                                               ctx.oracle, pricing) for p in differ}
+        return score_forked(ctx.episode, decision, ctx.oracle, pricing,
+                            then=self._then(decision))
+
+    def _then(self, decision: Optional[Decision]) -> Optional[Callable[[], Any]]:
+        """What decides after ``decision`` in its rollout (``OracleConfig.continuation``,
+        as in the oracle): with ``rules``, this planner in the forked copy, ``decision``
+        taken as its last one, deciding from the next instant on as the rules planner
+        does (the rules backend, whatever the recorded method's; the recorded method's
+        cadence and latency), without regret rollouts and without writing a log; nothing
+        after ``none`` or after no decision (the baseline stays the baseline)."""
+        if self._regret.oracle.continuation == "none" or decision is None:
+            return None
+
+        def rules_from_here() -> Any:
+            from lmpc_llm_planner.backends.rules import RulesBackend
+
+            core: Any = self
+            core._judging = True
+            if hasattr(core, "_as_rules"):  # the oracle's own planner: decide as rules
+                core._as_rules = True
+            if core.backend.name != "rules":
+                core.backend = RulesBackend(core.config.rules)
+            core._log_path = None
+            core._n = max(core._n, decision.seq)
+            core.last_decision = decision
+            return core
+
+        return rules_from_here
 
 
 def swap_part(decision: Decision, donor: Decision, part: str) -> Decision:
@@ -371,7 +404,9 @@ def summarise(rows: list[dict[str, Any]], scenes: list[dict[str, Any]]) -> dict[
 def summary_md(summary: dict[str, Any], run_dir: Path) -> str:
     lines = [f"# Regret of {run_dir}", "",
              "Regret = chosen decision's rollout score - best option's (O.C. units; "
-             "docs/ORACLE.md, \"Regret\").", "",
+             "docs/ORACLE.md, \"Regret\"). Judge: each rollout "
+             f"{summary.get('lookahead_s', OracleConfig.lookahead_s):g} s, continuation "
+             f"{summary.get('continuation', 'none')}.", "",
              "| family | decisions | median | p90 | mean | share 0 | by part | recovered by "
              "the part alone |",
              "|---|---|---|---|---|---|---|---|"]
@@ -556,7 +591,7 @@ def run(run_dir: Path, *, method: Optional[str] = None, out: Optional[Path] = No
         finally:
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
     return write_files(out, rows, scenes, run_dir, run_dir=str(run_dir), method=method,
-                       lookahead_s=oracle.lookahead_s,
+                       lookahead_s=oracle.lookahead_s, continuation=oracle.continuation,
                        wall_time_s=round(time.monotonic() - t0, 1), workers=workers,
                        executor=executor, interrupted=interrupted)
 
@@ -624,12 +659,17 @@ def merge(dirs: Sequence[Path], out: Path) -> dict[str, Any]:
         scenes += part["scenes"]
         rows += read_regret_csv(csv_path)
         keys = ("run_dir", "method", "lookahead_s", "wall_time_s", "workers", "interrupted")
-        sources.append({k: part.get(k) for k in keys})
-    if len({s["lookahead_s"] for s in sources}) > 1 or len({s["method"] for s in sources}) > 1:
-        raise RegretError("the folders differ in method or lookahead: "
-                          + ", ".join(f"{s['method']} {s['lookahead_s']} s" for s in sources))
+        # folders written before the continuation option judged without one
+        sources.append({**{k: part.get(k) for k in keys},
+                        "continuation": part.get("continuation", "none")})
+    judges = {(s["method"], s["lookahead_s"], s["continuation"]) for s in sources}
+    if len(judges) > 1:
+        raise RegretError("the folders differ in method, lookahead or continuation: "
+                          + ", ".join(f"{s['method']} {s['lookahead_s']} s continuation "
+                                      f"{s['continuation']}" for s in sources))
     return write_files(out, rows, scenes, merged_title(dirs), method=sources[0]["method"],
                        lookahead_s=sources[0]["lookahead_s"],
+                       continuation=sources[0]["continuation"],
                        merged_from=[str(d) for d in dirs], sources=sources)
 
 
@@ -648,6 +688,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--out", type=Path, help="output folder (default RUN_DIR/regret)")
     ap.add_argument("--lookahead-s", type=float, default=OracleConfig.lookahead_s,
                     help="rollout length, s of sim time (default: the oracle's)")
+    ap.add_argument("--continuation", choices=("none", "rules"),
+                    default=OracleConfig.continuation,
+                    help="what decides after an option in its rollout: none (default: the "
+                         "option until it expires, then the MPC baseline) or rules (the "
+                         "rules reasoner at the planner's cadence, as Table I's oracle rows "
+                         "with --oracle-continuation rules)")
     ap.add_argument("--workers", type=int, default=1,
                     help="scenes at once (worker processes / Ray CPUs; default 1)")
     ap.add_argument("--executor", choices=EXECUTORS, default="pool",
@@ -669,7 +715,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if args.run_dir is None:
         ap.error("RUN_DIR is required (or --merge)")
     try:
-        oracle = OracleConfig(lookahead_s=args.lookahead_s)
+        oracle = OracleConfig(lookahead_s=args.lookahead_s, continuation=args.continuation)
         summary = run(args.run_dir, method=args.method, out=args.out, oracle=oracle,
                       workers=args.workers, executor=args.executor)
     except (RegretError, ValueError, ExecutorError) as exc:

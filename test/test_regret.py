@@ -49,6 +49,43 @@ def test_the_regret_of_the_oracles_own_decisions_is_zero(tmp_path: Path) -> None
     assert scene["decisions"] == len(rows)
 
 
+def test_the_rules_continuation_judges_the_rules_run_as_the_oracle_does(
+        tmp_path: Path) -> None:
+    """``--continuation rules``: after the chosen decision the rules reasoner decides on in
+    the rollout, so at the first instant (both runs in the same state) the regret scores
+    the rules planner's decision exactly as Table I's oracle (16 s + rules continuation,
+    here a short window) scores its ``rules`` option; without the continuation the same
+    decision held alone scores differently."""
+    judge = mo.OracleConfig(lookahead_s=5.0, max_options=3, continuation="rules")
+    log = tmp_path / "usi-100-lmpc-oracle.jsonl"
+
+    def oracle(spec):
+        return mo.build(dataclasses.replace(spec, log_path=log), oracle=judge)
+
+    row = {"method": "lmpc-rules", "family": "usi", "seed": 100, "outcome": "-",
+           "time_s": "", "overall_cost": ""}
+    methods.prepare()
+    sim = SumoSim(work_dir=tmp_path / "scenes")
+    try:
+        regret.regret_of_scene(tmp_path, dict(row, method="lmpc-oracle"), sim=sim,
+                               oracle=judge, build=oracle, max_time_s=5.5)
+        with_rules, _ = regret.regret_of_scene(tmp_path, row, sim=sim, oracle=judge,
+                                               max_time_s=5.5)
+        held, _ = regret.regret_of_scene(
+            tmp_path, row, sim=sim, oracle=dataclasses.replace(judge, continuation="none"),
+            max_time_s=5.5)
+    finally:
+        sim.close()
+    first = next(json.loads(line) for line in log.read_text().splitlines()
+                 if json.loads(line).get("kind") == "oracle")
+    assert first["stamp_s"] == 0.0 and with_rules[0]["t_s"] == 0.0
+    assert with_rules[0]["chosen"] == "rules", with_rules[0]
+    assert math.isfinite(with_rules[0]["chosen_score"])
+    assert round(with_rules[0]["chosen_score"], 6) == first["scores"]["rules"]
+    assert held[0]["chosen"] == "rules"
+    assert abs(held[0]["chosen_score"] - with_rules[0]["chosen_score"]) > 1e-6
+
+
 def test_regret_of_a_two_scene_rules_run(tmp_path: Path) -> None:
     run = tmp_path / "run"
     assert benchmark.main(["--families", "usi,rab", "--seeds", "100", "--methods",
@@ -171,3 +208,9 @@ def test_merging_regret_folders_gives_the_summary_of_one_run(tmp_path: Path, cap
     assert regret.main(["--merge", str(tmp_path / "usi"), str(tmp_path / "usi"),
                         "--out", str(tmp_path / "twice")]) == 2
     assert "usi 0" in capsys.readouterr().err
+    judged = json.loads((tmp_path / "rab" / "summary.json").read_text())
+    (tmp_path / "rab" / "summary.json").write_text(json.dumps(dict(judged,
+                                                                   continuation="rules")))
+    assert regret.main(["--merge", str(tmp_path / "usi"), str(tmp_path / "rab"),
+                        "--out", str(tmp_path / "mixed")]) == 2
+    assert "continuation rules" in capsys.readouterr().err
