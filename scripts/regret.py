@@ -4,7 +4,7 @@ much better the best option of the oracle's decision space would have done (docs
 "Regret").
 
     regret.py RUN_DIR [--method lmpc-rules] [--out RUN_DIR/regret] [--lookahead-s 8]
-              [--workers N] [--executor pool|ray]
+              [--continuation none|rules] [--workers N] [--executor pool|ray]
     regret.py --merge REGRET_DIR [REGRET_DIR ...] --out DIR
 
 Each scene of ``RUN_DIR/results.csv`` is run again in-process with the recorded method
@@ -12,7 +12,9 @@ Each scene of ``RUN_DIR/results.csv`` is run again in-process with the recorded 
 an LLM method is repeated by ``lmpc-replay`` from ``RUN_DIR/decisions/``), with the run's
 simulated latency and instruction. At every decision instant, after the planner decided,
 the chosen decision and every option of ``method_oracle.decision_options`` are rolled out
-for the oracle's lookahead with the oracle's score, each in a forked copy of the process
+for the oracle's lookahead with the oracle's score (``--continuation rules``: the rules
+reasoner decides on after each option in its rollout, Table I's oracle judge), each in a
+forked copy of the process
 (``method_oracle.score_forked``, ``Episode.fork``); the episode itself is never restored
 and goes on with the chosen decision exactly as the method's own run did. Regret =
 chosen score - best score (O.C. units, >= 0: the chosen decision is one of the
