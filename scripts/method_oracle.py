@@ -437,9 +437,7 @@ class OraclePlanner(PlannerCore):
 
         def rules_from_here() -> "OraclePlanner":
             self._as_rules = True
-            self._log_path = None
-            self._n += 1  # the option's id was taken in this copy
-            self.last_decision = decision
+            continue_as_rules(self, decision)
             return self
 
         return rules_from_here
@@ -458,6 +456,20 @@ class OraclePlanner(PlannerCore):
             return {"oracle_decisions": 0}
         return {"oracle_decisions": len(w), "oracle_wall_s_median": round(statistics.median(w), 3),
                 "oracle_wall_s_p95": round(w[min(len(w) - 1, int(0.95 * len(w)))], 3)}
+
+
+def continue_as_rules(core: PlannerCore, decision: Decision) -> None:
+    """Make ``core``, in a rollout's forked copy, the rules planner that decides after
+    ``decision`` (``OracleConfig.continuation == "rules"``; the oracle and regret.py):
+    the rules backend (whatever the recorded method's), ``decision`` its last one and
+    its id taken, no log written. The caller switches off its own per-instant work."""
+    from lmpc_llm_planner.backends.rules import RulesBackend
+
+    if core.backend.name != "rules":
+        core.backend = RulesBackend(core.config.rules)
+    core._log_path = None
+    core._n = max(core._n, decision.seq)  # the option's id was taken in this copy
+    core.last_decision = decision
 
 
 def build(spec: SceneSpec, oracle: Optional[OracleConfig] = None) -> Wiring:

@@ -56,6 +56,7 @@ from lmpc_msgs_py.messages import Decision
 from lmpc_scripts import methods
 from lmpc_scripts.method_oracle import (
     OracleConfig,
+    continue_as_rules,
     Pricing,
     options_in,
     option_decision,
@@ -233,17 +234,11 @@ class RegretMixin:
             return None
 
         def rules_from_here() -> Any:
-            from lmpc_llm_planner.backends.rules import RulesBackend
-
             core: Any = self
             core._judging = True
             if hasattr(core, "_as_rules"):  # the oracle's own planner: decide as rules
                 core._as_rules = True
-            if core.backend.name != "rules":
-                core.backend = RulesBackend(core.config.rules)
-            core._log_path = None
-            core._n = max(core._n, decision.seq)
-            core.last_decision = decision
+            continue_as_rules(core, decision)
             return core
 
         return rules_from_here
