@@ -35,11 +35,12 @@ bench: install
 		--methods mpc,dqn,ppo,sac,adp,lmpc-rules --out runs/bench
 
 # Re-train the committed learned planners, DQN, PPO and SAC for each family (docs/RL.md,
-# "Measured"): needs the rl extra (pip install -e '.[rl]': skrl on CPU JAX). One env per run
-# (the 2026-12-04 runs: ~6-10 min a pair on a loaded 2-core machine, ~1.5 h for PPO and SAC).
-TRAIN_STEPS ?= 8000
+# "Measured"): needs the rl extra (pip install -e '.[rl]': skrl on CPU JAX). 25 000 steps and
+# two envs a pair (the 2026-12-05 runs on the idle 2-core machine: 5-8 min a pair with the
+# held-out check; docs/RL.md has each pair's steps, wall time and provenance).
+TRAIN_STEPS ?= 25000
 TRAIN_ALGOS ?= dqn ppo sac
-TRAIN_ENVS ?= 1
+TRAIN_ENVS ?= 2
 train:
 	for a in $(TRAIN_ALGOS); do for f in si usi lane rab eoa; do \
 		$(PY) scripts/train_rl.py --algo $$a --family $$f --steps $(TRAIN_STEPS) --seed 10000 \
