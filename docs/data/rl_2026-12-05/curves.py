@@ -33,7 +33,9 @@ def summary(run: Path) -> dict:
         cov = s2 * np.linalg.inv(A.T @ A)
         se = float(np.sqrt(cov[0, 0]))
         slope, lo, hi = float(coef[0]), float(coef[0] - 1.96 * se), float(coef[0] + 1.96 * se)
-    trend = ("no trend" if lo <= 0 <= hi else "rising" if lo > 0 else "falling") if lo == lo else "-"
+    trend = "-"
+    if lo == lo:
+        trend = "no trend" if lo <= 0 <= hi else "rising" if lo > 0 else "falling"
     return dict(run=f"{prov['algo']}-{prov['family']}", steps=prov["steps"], episodes=len(rows),
                 train_wall_s=prov["train_wall_s"], steps_per_s=prov["steps_per_s"],
                 q_return=[float(ret[i].mean()) for i in q if len(i)],
@@ -45,7 +47,8 @@ def summary(run: Path) -> dict:
 
 
 def main() -> None:
-    print("| run | steps | episodes | train wall | steps/s | return by quarter | O.C. by quarter "
+    print("| run | steps | episodes | train wall | steps/s | return by quarter "
+          "| O.C. by quarter "
           "| last quarter reached | 2nd-half slope / 1k steps (95 %) | curve | held-out policy "
           "| held-out mpc |")
     print("|---" * 12 + "|")
