@@ -36,8 +36,8 @@ bench: install
 
 # Re-train the committed learned planners, DQN, PPO and SAC for each family (docs/RL.md,
 # "Measured"): needs the rl extra (pip install -e '.[rl]': skrl on CPU JAX). 25 000 steps and
-# two envs a pair (the 2026-12-05 runs on the idle 2-core machine: 5-8 min a pair with the
-# held-out check; docs/RL.md has each pair's steps, wall time and provenance).
+# two envs a pair (the 2026-12-05 runs on the 2-core machine: 5-9 min a pair with the
+# held-out check, 93 min for all 15; docs/RL.md has each pair's steps, wall time, provenance).
 TRAIN_STEPS ?= 25000
 TRAIN_ALGOS ?= dqn ppo sac
 TRAIN_ENVS ?= 2
