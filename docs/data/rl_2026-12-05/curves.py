@@ -33,6 +33,8 @@ def summary(run: Path) -> dict:
         cov = s2 * np.linalg.inv(A.T @ A)
         se = float(np.sqrt(cov[0, 0]))
         slope, lo, hi = float(coef[0]), float(coef[0] - 1.96 * se), float(coef[0] + 1.96 * se)
+    first, _, last = prov.get("eval_seeds", "0-(-1)").partition("-")
+    n_eval = int(last) - int(first) + 1  # the held-out scenes, eval_seeds "a-b"
     trend = "-"
     if lo == lo:
         trend = "no trend" if lo <= 0 <= hi else "rising" if lo > 0 else "falling"
@@ -42,8 +44,8 @@ def summary(run: Path) -> dict:
                 q_oc=[float(oc[i].mean()) for i in q if len(i)],
                 last_q_reached=f"{int(reached[q[-1]].sum())}/{len(q[-1])}",
                 slope=slope, lo=lo, hi=hi, trend=trend,
-                held_out=(f"{prov.get('eval_policy_reached')}/5, {prov.get('eval_policy_oc')}",
-                          f"{prov.get('eval_mpc_reached')}/5, {prov.get('eval_mpc_oc')}"))
+                held_out=tuple(f"{prov.get(f'eval_{who}_reached')}/{n_eval}, "
+                               f"{prov.get(f'eval_{who}_oc')}" for who in ("policy", "mpc")))
 
 
 def main() -> None:
