@@ -41,6 +41,11 @@ DQN_REWARD_SCALE = 0.01
 failure 300, so unscaled Q-values run to the hundreds; scaled they are O(1), what the
 learning rate and the MSE loss suit. A positive factor leaves the greedy action unchanged;
 the curve and the held-out returns are in the unscaled reward."""
+TRAIN_CAP = 2.0
+"""A training episode ends (truncated) after this many times its estimated steps
+(``LmpcDrivingEnv(train_cap=...)``): an exploring policy that brakes otherwise stands for
+the 200 s cap's 2 000 steps, and 25 000 steps bought 12-89 episodes a pair (docs/RL.md).
+The learner bootstraps from the capped episode's last observation (``_stored_next``)."""
 CURVE_FIELDS = ("episode", "total_steps", "wall_s", "return", "length", "outcome",
                 "overall_cost", "scene_seed")
 
@@ -54,6 +59,10 @@ def parse_args(argv: Optional[list[str]] = None) -> argparse.Namespace:
                    help=f"RNG seed and first scene seed (>= {MIN_TRAIN_SEED})")
     p.add_argument("--scenes", type=int, default=200, help="scene seeds seed..seed+N-1")
     p.add_argument("--envs", type=int, default=2, help="parallel environments (processes)")
+    p.add_argument("--train-cap", type=float, default=TRAIN_CAP,
+                   help="end a training episode still running after this many times its "
+                        "estimated steps (truncated, outcome 'cap'; 0: only the 200 s cap); "
+                        f"default {TRAIN_CAP}")
     p.add_argument("--out", type=Path, default=None)
     p.add_argument("--eval-scenes", type=int, default=10,
                    help="after training, drive this many further training scenes (the "
@@ -76,6 +85,8 @@ def check_args(args: argparse.Namespace) -> Optional[str]:
         return f"--family {args.family!r}: choose from {', '.join(families())}"
     if args.steps < 1 or args.scenes < 1 or args.envs < 1 or args.eval_scenes < 0:
         return "--steps, --scenes and --envs must be >= 1, --eval-scenes >= 0"
+    if not args.train_cap >= 0:
+        return f"--train-cap must be >= 0 (0: only the 200 s cap), got {args.train_cap}"
     return None
 
 
@@ -172,7 +183,7 @@ def make_agent(algo: str, models: dict[str, Any], env: Any, steps_per_env: int) 
         rollouts = max(8, min(64, steps_per_env // 4))
         cfg = PPO_CFG(rollouts=rollouts, learning_epochs=4, mini_batches=4, discount_factor=0.99,
                       gae_lambda=0.95, learning_rate=3e-4, entropy_loss_scale=0.0,
-                      value_loss_scale=0.5)
+                      value_loss_scale=0.5, time_limit_bootstrap=True)
         agent = PPO(memory=RandomMemory(memory_size=rollouts, num_envs=n, device=dev), cfg=cfg,
                     **common)
     else:
@@ -317,12 +328,28 @@ def _versions() -> dict[str, str]:
     return out
 
 
-def _make_env(family: str, seeds: tuple[int, ...], action: str) -> Any:
+def _make_env(family: str, seeds: tuple[int, ...], action: str,
+              train_cap: Optional[float] = None) -> Any:
     def make() -> Any:
         from lmpc_bridge.gym_env import LmpcDrivingEnv
 
-        return LmpcDrivingEnv(family, seeds=seeds, action=action)
+        return LmpcDrivingEnv(family, seeds=seeds, action=action, train_cap=train_cap)
     return make
+
+
+def _stored_next(next_obs: Any, info: dict[str, Any], done: np.ndarray) -> Any:
+    """The next observations to store with this step's transitions: the vector env resets a
+    finished environment in the same step and returns the new episode's first
+    observation; the finished episode's last one is ``info["final_obs"]``. A truncated
+    episode (the training cap, the 200 s cap) bootstraps from it (skrl's DQN and SAC
+    targets stop only at ``terminated``; PPO with ``time_limit_bootstrap``)."""
+    final = info.get("final_obs")
+    if final is None or not done.any():
+        return next_obs
+    stored = np.array(next_obs, dtype=np.float32, copy=True)
+    for i in np.nonzero(done)[0]:
+        stored[i] = np.asarray(final[i], dtype=np.float32).reshape(-1)
+    return stored
 
 
 def train(args: argparse.Namespace) -> dict[str, Any]:
@@ -339,7 +366,8 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     kind = ALGOS[args.algo]
     set_seed(args.seed)
     t0 = time.perf_counter()
-    venv = gym.vector.AsyncVectorEnv([_make_env(args.family, seeds, kind)] * args.envs,
+    cap = args.train_cap or None
+    venv = gym.vector.AsyncVectorEnv([_make_env(args.family, seeds, kind, cap)] * args.envs,
                                      autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
                                      context="spawn")
     env = wrap_env(venv, wrapper="gymnasium")
@@ -369,14 +397,15 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
                 t_env = time.perf_counter()
                 next_obs, rewards, terminated, truncated, info = env.step(actions)
                 env_s += time.perf_counter() - t_env
+                done = (np.asarray(terminated).reshape(-1) | np.asarray(truncated).reshape(-1))
                 agent.record_transition(
                     observations=obs, states=None, actions=actions, rewards=rewards,
-                    next_observations=next_obs, next_states=None, terminated=terminated,
-                    truncated=truncated, infos=info, timestep=t, timesteps=iterations)
+                    next_observations=_stored_next(next_obs, info, done.astype(bool)),
+                    next_states=None, terminated=terminated, truncated=truncated, infos=info,
+                    timestep=t, timesteps=iterations)
                 agent.post_interaction(timestep=t, timesteps=iterations)
                 obs = next_obs
                 r = np.asarray(rewards).reshape(-1)
-                done = (np.asarray(terminated).reshape(-1) | np.asarray(truncated).reshape(-1))
                 returns += r
                 lengths += 1
                 for i, last in _episode_ends(info, done.astype(bool)):
@@ -386,7 +415,10 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
                            "wall_s": round(time.perf_counter() - t1, 2),
                            "return": round(float(returns[i]), 4), "length": int(lengths[i]),
                            "outcome": last.get("outcome", ""),
-                           "overall_cost": round(float(metrics.get("overall_cost", math.nan)), 4),
+                           # a capped episode has no O.C. (its metrics are those so far)
+                           "overall_cost": (math.nan if last.get("outcome") == "cap" else
+                                            round(float(metrics.get("overall_cost", math.nan)),
+                                                  4)),
                            "scene_seed": last.get("scene_seed", "")}
                     writer.writerow(row)
                     fh.flush()
@@ -405,6 +437,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     prov = {
         "algo": args.algo, "family": args.family, "seed": args.seed,
         "scene_seeds": f"{seeds[0]}-{seeds[-1]}", "steps": steps, "envs": args.envs,
+        "train_cap": cap,
         "episodes": len(episodes), "train_wall_s": round(wall, 1),
         "setup_wall_s": round(setup_s, 1), "steps_per_s": round(steps / wall, 1),
         "env_wall_s": round(env_s, 1), "agent_wall_s": round(wall - env_s, 1),

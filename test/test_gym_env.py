@@ -78,6 +78,29 @@ def test_bad_arguments_get_one_line_errors() -> None:
         gym_env.LmpcDrivingEnv("usi", action="both")
     with pytest.raises(ValueError, match="at least one scene seed"):
         gym_env.LmpcDrivingEnv("usi", seeds=())
+    with pytest.raises(ValueError, match="train_cap must be a positive multiple"):
+        gym_env.LmpcDrivingEnv("usi", train_cap=0.0)
+
+
+def test_the_training_cap_truncates_after_its_share_of_the_estimated_steps() -> None:
+    """``train_cap``: a standing policy's episode ends (truncated, outcome "cap", no
+    failure penalty) after ``train_cap`` x the estimated steps, not at the 200 s cap; the
+    env refuses another step and resets into a new episode."""
+    env = gym_env.LmpcDrivingEnv("usi", seeds=(10000,), train_cap=0.1)
+    env.reset(seed=0)
+    cap = env._cap_steps
+    assert cap == int(np.ceil(0.1 * env._n_est)) and 5 < cap < 100
+    brake = method_rl.DISCRETE_ACTIONS.index(("brake", "keep lane"))
+    for k in range(1, cap + 1):
+        obs, reward, terminated, truncated, info = env.step(brake)
+        assert not terminated and truncated == (k == cap), k
+    assert info["outcome"] == "cap" and env.episode.running
+    assert reward > -gym_env.FAILURE_PENALTY / 10  # a truncation, not a failure
+    assert info["metrics"]["steps"] == cap and env.observation_space.contains(obs)
+    with pytest.raises(RuntimeError, match="after the episode ended"):
+        env.step(brake)
+    env.reset(seed=0)
+    assert not env.step(brake)[3]  # a new episode runs
 
 
 @pytest.mark.parametrize("action", ["discrete", "continuous"])

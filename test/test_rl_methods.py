@@ -23,6 +23,14 @@ BENCH = REPO / "scripts" / "benchmark.py"
 TRAIN = REPO / "scripts" / "train_rl.py"
 
 
+def _train_module():
+    """scripts/train_rl.py as a module (its helpers need numpy only)."""
+    spec = importlib.util.spec_from_file_location("train_rl", TRAIN)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
 def random_policy(algo: str, seed: int = 0) -> method_rl.NumpyPolicy:
     rng = np.random.default_rng(seed)
     out = 9 if algo == "dqn" else 2
@@ -147,6 +155,20 @@ def test_shifted_moves_the_reference_sideways_but_not_its_start() -> None:
     assert left.control_points == ((0.0, 0.0), (10.0, 2.0), (20.0, 2.0))
 
 
+def test_stored_next_observations_are_the_finished_episodes_last_ones() -> None:
+    """The vector env autoresets in the same step: a finished environment's next
+    observation is the new episode's first; the transition must store the old episode's
+    last (``final_obs``), or a truncated episode bootstraps from the wrong state."""
+    train_rl = _train_module()
+    nxt = np.array([[1.0, 1.0], [2.0, 2.0]], np.float32)
+    final = np.array([None, np.array([9.0, 8.0], np.float32)], dtype=object)
+    info = {"final_obs": final, "_final_obs": np.array([False, True])}
+    stored = train_rl._stored_next(nxt, info, np.array([False, True]))
+    np.testing.assert_array_equal(stored, [[1.0, 1.0], [9.0, 8.0]])
+    np.testing.assert_array_equal(nxt, [[1.0, 1.0], [2.0, 2.0]])  # not changed in place
+    assert train_rl._stored_next(nxt, {}, np.array([False, False])) is nxt
+
+
 def test_train_refuses_seeds_below_the_training_range() -> None:
     out = subprocess.run([sys.executable, str(TRAIN), "--algo", "dqn", "--family", "usi",
                           "--steps", "10", "--seed", "3"], capture_output=True, text=True)
@@ -167,11 +189,12 @@ def test_training_smoke_run_writes_curve_and_policy(algo: str, tmp_path: Path) -
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     rows = list(csv.DictReader((tmp_path / "curve.csv").open()))
-    assert all(r["outcome"] in ("reached", "collision", "timeout", "off_route", "error")
+    assert all(r["outcome"] in ("reached", "collision", "timeout", "off_route", "error", "cap")
                for r in rows)
     assert (tmp_path / "curve.png").stat().st_size > 0
     prov = json.loads((tmp_path / "provenance.json").read_text())
     assert prov["steps"] == 300 and prov["versions"]["skrl"] != "absent"
+    assert prov["train_cap"] == 2.0
     held_out = list(csv.DictReader((tmp_path / "eval.csv").open()))
     pairs = [(r["scene_seed"], r["driver"]) for r in held_out]
     assert pairs == [("10200", "policy"), ("10200", "mpc")]

@@ -41,7 +41,8 @@ def summary(run: Path) -> dict:
     return dict(run=f"{prov['algo']}-{prov['family']}", steps=prov["steps"], episodes=len(rows),
                 train_wall_s=prov["train_wall_s"], steps_per_s=prov["steps_per_s"],
                 q_return=[float(ret[i].mean()) for i in q if len(i)],
-                q_oc=[float(oc[i].mean()) for i in q if len(i)],
+                q_oc=[float(np.nanmean(oc[i])) if np.isfinite(oc[i]).any() else float("nan")
+                      for i in q if len(i)],
                 last_q_reached=f"{int(reached[q[-1]].sum())}/{len(q[-1])}",
                 slope=slope, lo=lo, hi=hi, trend=trend,
                 held_out=tuple(f"{prov.get(f'eval_{who}_reached')}/{n_eval}, "

@@ -18,6 +18,7 @@ libsumo runs one simulation per process: one environment per process (vectorise 
 from __future__ import annotations
 
 import importlib
+import math
 import tempfile
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
@@ -75,13 +76,19 @@ class LmpcDrivingEnv(gym.Env):
     ``action``: ``discrete`` (9 actions) or ``continuous`` (Box [-1, 1]^2).
     ``wiring(kind)``: (action planner, controller factory, called at each reset); the
     default is ``lmpc_scripts.method_rl.ActionPlanner`` and the benchmark's MPC
-    (``methods.make_controller``: a fresh controller, no warm start carried over)."""
+    (``methods.make_controller``: a fresh controller, no warm start carried over).
+    ``train_cap``: for training only, end (``truncated``, outcome ``"cap"``) an episode
+    still running after ``train_cap`` x its estimated steps (``n_est``, the steps to the
+    target at ``ROUTE_SPEED_MPS``), so an exploring policy that stands costs a few hundred
+    steps instead of the 200 s cap's 2 000; no penalty on that step (a truncation: the
+    learner bootstraps from the last observation). ``None``: only ``max_time_s``."""
 
     metadata = {"render_modes": []}
 
     def __init__(self, family: str = "usi", seeds: Sequence[int] = (10000,), *,
                  action: str = "discrete", k_agents: int = DEFAULT_K_AGENTS,
-                 max_time_s: float = 200.0, work_dir: Optional[Path] = None,
+                 max_time_s: float = 200.0, train_cap: Optional[float] = None,
+                 work_dir: Optional[Path] = None,
                  wiring: Optional[Callable[[str], tuple[Any, Callable[[], Any]]]] = None
                  ) -> None:
         from lmpc_bridge.scenarios import families
@@ -92,6 +99,10 @@ class LmpcDrivingEnv(gym.Env):
             raise ValueError("seeds: give at least one scene seed")
         if action not in ("discrete", "continuous"):
             raise ValueError(f"action must be discrete or continuous, got {action!r}")
+        if train_cap is not None and not train_cap > 0:
+            raise ValueError(f"train_cap must be a positive multiple of the estimated steps, "
+                             f"got {train_cap!r}")
+        self.train_cap = train_cap
         self.family, self.seeds = family, tuple(int(s) for s in seeds)
         self.kind, self.k_agents, self.max_time_s = action, k_agents, max_time_s
         self.observation_space = gym.spaces.Box(-CLIP, CLIP, (obs_size(k_agents),), np.float32)
@@ -105,6 +116,9 @@ class LmpcDrivingEnv(gym.Env):
         self._geometry = RouteFrame()
         self._obs: Any = None
         self._n_est = 1.0
+        self._steps = 0
+        self._cap_steps: Optional[int] = None
+        self._capped = False
 
     # -- gymnasium ----------------------------------------------------------------------------
     def reset(self, *, seed: Optional[int] = None, options: Optional[dict[str, Any]] = None
@@ -142,12 +156,15 @@ class LmpcDrivingEnv(gym.Env):
         self._obs = self.episode.begin_step()
         speed = ROUTE_SPEED_MPS
         self._n_est = self._obs.ego.dist_to_target_m / speed / _SIM.dt_s + 1.0
+        self._steps, self._capped = 0, False
+        self._cap_steps = (None if self.train_cap is None
+                           else max(1, math.ceil(self.train_cap * self._n_est)))
         return self._vector(), {"scene_seed": scene_seed, "family": self.family,
                                 "skipped_seeds": skipped}
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         ep = self.episode
-        if ep is None or ep.pending is None:
+        if ep is None or ep.pending is None or self._capped:
             raise RuntimeError("step() before reset() or after the episode ended")
         self._planner.action = action
         decision = ep.ask(self._planner, self._obs)
@@ -156,6 +173,9 @@ class LmpcDrivingEnv(gym.Env):
         sim = ep.sim
         outcome = sim.outcome
         running = outcome == "running"
+        self._steps += 1
+        self._capped = (running and self._cap_steps is not None
+                        and self._steps >= self._cap_steps)
         if running:
             self._obs = ep.begin_step()
             dist_after = self._obs.ego.dist_to_target_m
@@ -165,10 +185,11 @@ class LmpcDrivingEnv(gym.Env):
         reward = step_reward(last, dist_before_m=dist_before, dist_after_m=dist_after,
                              n_est=self._n_est, dt_s=sim.dt_s, outcome=outcome)
         terminated = outcome in ("reached", "collision", "off_route", "error")
-        truncated = outcome == "timeout"
-        info: dict[str, Any] = {"outcome": outcome, "decision": decision is not None,
+        truncated = outcome == "timeout" or self._capped
+        info: dict[str, Any] = {"outcome": "cap" if self._capped else outcome,
+                                "decision": decision is not None,
                                 "scene_seed": self.scene_seed}
-        if not running:
+        if not running or self._capped:  # a capped episode's metrics are those so far
             result = ep.result()
             m = result.metrics
             info["metrics"] = {"time_s": m.time_s, "ineff": m.ineff, "pen_acc": m.pen_acc,
