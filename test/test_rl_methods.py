@@ -194,7 +194,7 @@ def test_training_smoke_run_writes_curve_and_policy(algo: str, tmp_path: Path) -
     assert (tmp_path / "curve.png").stat().st_size > 0
     prov = json.loads((tmp_path / "provenance.json").read_text())
     assert prov["steps"] == 300 and prov["versions"]["skrl"] != "absent"
-    assert prov["train_cap"] == 2.0
+    assert prov["train_cap"] is None  # the default: only the 200 s cap
     held_out = list(csv.DictReader((tmp_path / "eval.csv").open()))
     pairs = [(r["scene_seed"], r["driver"]) for r in held_out]
     assert pairs == [("10200", "policy"), ("10200", "mpc")]
