@@ -45,9 +45,10 @@ TRAIN_CAP = 0.0
 """``--train-cap``'s default: off (only the 200 s cap). With a cap c a training episode
 ends (truncated) after c times its estimated steps (``LmpcDrivingEnv(train_cap=...)``) and
 the learner bootstraps from its last observation (``_stored_next``); c = 2 was measured
-on all 15 pairs (docs/RL.md, "A training cap, tried"): 1.3-5.5x the episodes, but most si,
-usi and eoa episodes ended at the cap, and the held-out checks came out worse in 11 of 15
-pairs (47 of 75 held-out scenes reached, 60 without the cap), so it is not the default."""
+on 14 of the 15 pairs (docs/RL.md, "A training cap, tried"): 1.3-5.5x the episodes, but
+most si, usi and eoa episodes ended at the cap, and the held-out checks came out worse in
+10 of 14 pairs (47 of 70 held-out scenes reached, 60 without the cap), so it is not the
+default."""
 CURVE_FIELDS = ("episode", "total_steps", "wall_s", "return", "length", "outcome",
                 "overall_cost", "scene_seed")
 
