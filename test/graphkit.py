@@ -18,6 +18,18 @@ TOPICS = REPO / "scripts" / "topics.py"
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
+
+def scripts_module(name: str) -> Any:
+    """``scripts/<name>.py`` of this checkout (the installed lmpc_scripts may be another's)."""
+    import importlib
+
+    sys.path.insert(0, str(REPO / "scripts"))
+    try:
+        return importlib.import_module(name)
+    finally:
+        sys.path.remove(str(REPO / "scripts"))
+
+
 _domains = itertools.count()
 
 

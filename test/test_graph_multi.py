@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 
-from graphkit import REPO, RUN_GRAPH, Probe, graph_processes, run_graph
+from graphkit import RUN_GRAPH, Probe, graph_processes, run_graph, scripts_module
 
 pytestmark = pytest.mark.graph
 
@@ -37,11 +37,7 @@ def _in_process(mode: str) -> Any:
     """The same scene in-process (scripts/multi.py's wiring, lmpc-rules)."""
     import tempfile
 
-    sys.path.insert(0, str(REPO / "scripts"))
-    try:
-        import multi
-    finally:
-        sys.path.remove(str(REPO / "scripts"))
+    multi = scripts_module("multi")
     from lmpc_bridge.multi_episode import run_multi_episode
     from lmpc_bridge.multi_sim import MultiSumoSim
 
@@ -320,17 +316,6 @@ def test_llm_planners_and_llm_coordinator_then_both_replayed(
     assert not graph_processes(domain_id)
 
 
-def _scripts_module(name: str) -> Any:
-    """``scripts/<name>.py`` of this checkout (the installed lmpc_scripts may be another's)."""
-    import importlib
-
-    sys.path.insert(0, str(REPO / "scripts"))
-    try:
-        return importlib.import_module(name)
-    finally:
-        sys.path.remove(str(REPO / "scripts"))
-
-
 @pytest.mark.parametrize("extra, why", [
     (["--planner", "mock", "--mock-script", "x.yaml"], "--planner mock: a multi-ego graph"),
     (["--planner", "replay", "--coordination", "central"], "needs --planner-replay DIR"),
@@ -348,8 +333,8 @@ def _scripts_module(name: str) -> Any:
 ])
 def test_unsupported_multi_ego_combinations_are_refused_in_one_line(
         tmp_path: Path, extra: list[str], why: str) -> None:
-    run_graph_mod = _scripts_module("run_graph")
-    graph_multi = _scripts_module("graph_multi")
+    run_graph_mod = scripts_module("run_graph")
+    graph_multi = scripts_module("graph_multi")
     args = run_graph_mod.parse_args(["--scenario", "narrow", "--seed", str(SEED), *extra])
     error = graph_multi.check_args(args, tmp_path / "run" / "scene")
     assert error is not None and why in error and "\n" not in error, error

@@ -6,12 +6,12 @@ in the decision logs."""
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import pytest
 
-from benchkit import REPO, bench_rows, read_rows, run_benchmark
+from benchkit import bench_rows, read_rows, run_benchmark
+from graphkit import scripts_module
 
 # the scenes named by the issue (all four reached after the MPC changes of 2026-12-03,
 # docs/lmpc_mpc.md, "stale decisions, second round"; usi 21 is off route since the third)
@@ -84,8 +84,7 @@ def test_run_graph_passes_the_latencies_to_the_planner_node(tmp_path: Path) -> N
     """``run_graph.py --decision-latency`` reaches the planner node's parameters (which map
     them through ``latency_overrides``), the emergency one defaulting to min(S, 1.5); a
     graph without a planner backend refuses the option, naming it."""
-    sys.path.insert(0, str(REPO / "scripts"))
-    import run_graph
+    run_graph = scripts_module("run_graph")
 
     args = run_graph.parse_args(["--decision-latency", "5"])
     params = run_graph.node_params(args, tmp_path)["planner"]

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from benchkit import bench_rows
-from graphkit import REPO
+from graphkit import REPO, scripts_module
 
 sys.path.insert(0, str(REPO / "src" / "lmpc_bridge" / "test"))
 from short_lc_nets import make_short_lc_net, route_of, scene_yaml  # noqa: E402
@@ -154,8 +154,7 @@ def test_graph_mock_always_candidate_0_follows_the_route(tmp_path: Path, domain_
 
 
 def test_run_graph_exit_code_for_off_route() -> None:
-    sys.path.insert(0, str(REPO / "scripts"))
-    import run_graph as rg
+    rg = scripts_module("run_graph")
 
     assert rg.EXIT_CODES["off_route"] == 4
     assert sorted(rg.EXIT_CODES.values()) == [0, 1, 2, 3, 4]

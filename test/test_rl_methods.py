@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from graphkit import REPO
+from graphkit import REPO, scripts_module
 
 from lmpc_bridge.evaluation.scenes import RunSettings, run_scene
 from lmpc_bridge.rl_obs import obs_size
@@ -21,14 +21,6 @@ from lmpc_scripts import method_rl, methods
 
 BENCH = REPO / "scripts" / "benchmark.py"
 TRAIN = REPO / "scripts" / "train_rl.py"
-
-
-def _train_module():
-    """scripts/train_rl.py as a module (its helpers need numpy only)."""
-    spec = importlib.util.spec_from_file_location("train_rl", TRAIN)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def random_policy(algo: str, seed: int = 0) -> method_rl.NumpyPolicy:
@@ -159,7 +151,7 @@ def test_stored_next_observations_are_the_finished_episodes_last_ones() -> None:
     """The vector env autoresets in the same step: a finished environment's next
     observation is the new episode's first; the transition must store the old episode's
     last (``final_obs``), or a truncated episode bootstraps from the wrong state."""
-    train_rl = _train_module()
+    train_rl = scripts_module("train_rl")  # its helpers need numpy only
     nxt = np.array([[1.0, 1.0], [2.0, 2.0]], np.float32)
     final = np.array([None, np.array([9.0, 8.0], np.float32)], dtype=object)
     info = {"final_obs": final, "_final_obs": np.array([False, True])}
