@@ -400,10 +400,11 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
                 t_env = time.perf_counter()
                 next_obs, rewards, terminated, truncated, info = env.step(actions)
                 env_s += time.perf_counter() - t_env
-                done = (np.asarray(terminated).reshape(-1) | np.asarray(truncated).reshape(-1))
+                done = (np.asarray(terminated).reshape(-1)
+                        | np.asarray(truncated).reshape(-1)).astype(bool)
                 agent.record_transition(
                     observations=obs, states=None, actions=actions, rewards=rewards,
-                    next_observations=_stored_next(next_obs, info, done.astype(bool)),
+                    next_observations=_stored_next(next_obs, info, done),
                     next_states=None, terminated=terminated, truncated=truncated, infos=info,
                     timestep=t, timesteps=iterations)
                 agent.post_interaction(timestep=t, timesteps=iterations)
@@ -411,7 +412,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
                 r = np.asarray(rewards).reshape(-1)
                 returns += r
                 lengths += 1
-                for i, last in _episode_ends(info, done.astype(bool)):
+                for i, last in _episode_ends(info, done):
                     metrics = last.get("metrics") or {}
                     row = {"episode": len(episodes) + 1,
                            "total_steps": (t + 1) * env.num_envs,

@@ -116,9 +116,7 @@ class LmpcDrivingEnv(gym.Env):
         self._geometry = RouteFrame()
         self._obs: Any = None
         self._n_est = 1.0
-        self._steps = 0
         self._cap_steps: Optional[int] = None
-        self._capped = False
 
     # -- gymnasium ----------------------------------------------------------------------------
     def reset(self, *, seed: Optional[int] = None, options: Optional[dict[str, Any]] = None
@@ -156,7 +154,6 @@ class LmpcDrivingEnv(gym.Env):
         self._obs = self.episode.begin_step()
         speed = ROUTE_SPEED_MPS
         self._n_est = self._obs.ego.dist_to_target_m / speed / _SIM.dt_s + 1.0
-        self._steps, self._capped = 0, False
         self._cap_steps = (None if self.train_cap is None
                            else max(1, math.ceil(self.train_cap * self._n_est)))
         return self._vector(), {"scene_seed": scene_seed, "family": self.family,
@@ -164,7 +161,7 @@ class LmpcDrivingEnv(gym.Env):
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         ep = self.episode
-        if ep is None or ep.pending is None or self._capped:
+        if ep is None or ep.pending is None or self._capped():
             raise RuntimeError("step() before reset() or after the episode ended")
         self._planner.action = action
         decision = ep.ask(self._planner, self._obs)
@@ -173,9 +170,7 @@ class LmpcDrivingEnv(gym.Env):
         sim = ep.sim
         outcome = sim.outcome
         running = outcome == "running"
-        self._steps += 1
-        self._capped = (running and self._cap_steps is not None
-                        and self._steps >= self._cap_steps)
+        capped = self._capped()
         if running:
             self._obs = ep.begin_step()
             dist_after = self._obs.ego.dist_to_target_m
@@ -185,17 +180,23 @@ class LmpcDrivingEnv(gym.Env):
         reward = step_reward(last, dist_before_m=dist_before, dist_after_m=dist_after,
                              n_est=self._n_est, dt_s=sim.dt_s, outcome=outcome)
         terminated = outcome in ("reached", "collision", "off_route", "error")
-        truncated = outcome == "timeout" or self._capped
-        info: dict[str, Any] = {"outcome": "cap" if self._capped else outcome,
+        truncated = outcome == "timeout" or capped
+        info: dict[str, Any] = {"outcome": "cap" if capped else outcome,
                                 "decision": decision is not None,
                                 "scene_seed": self.scene_seed}
-        if not running or self._capped:  # a capped episode's metrics are those so far
+        if not running or capped:  # a capped episode's metrics are those so far
             result = ep.result()
             m = result.metrics
             info["metrics"] = {"time_s": m.time_s, "ineff": m.ineff, "pen_acc": m.pen_acc,
                                "pen_dist": m.pen_dist, "overall_cost": m.overall_cost,
                                "steps": m.steps}
         return self._vector(), reward, terminated, truncated, info
+
+    def _capped(self) -> bool:
+        """The episode still runs and has taken its ``train_cap`` share of steps."""
+        sim = self.episode.sim
+        return (self._cap_steps is not None and sim.outcome == "running"
+                and sim.step_index >= self._cap_steps)
 
     def _vector(self) -> np.ndarray:
         return observation_vector(self._obs, self._geometry, self.k_agents)
