@@ -772,10 +772,12 @@ class MpcController(CrossingRules):
         self._mode = mode
         pts: tuple[PosePoint, ...] = ()
         if predicted is not None and np.all(np.isfinite(predicted)):
-            pts = tuple(PosePoint(x_m=float(r[0]), y_m=float(r[1]),
-                                  yaw_rad=float(math.remainder(r[2], 2 * math.pi)),
-                                  v_mps=float(np.clip(r[3], -5.0, 70.0)))
-                        for r in predicted[:200])
+            # plain floats (tolist): the same values as per-element numpy scalars, a
+            # fraction of the time (this runs every control step)
+            two_pi = 2 * math.pi
+            pts = tuple(PosePoint(x_m=r[0], y_m=r[1], yaw_rad=math.remainder(r[2], two_pi),
+                                  v_mps=min(max(r[3], -5.0), 70.0))
+                        for r in predicted[:200, :4].tolist())
         solve_ms = float(min(max(solve_time_s * 1e3, 0.0), 1e6))
         ctl = Control(stamp_s=obs.ego.stamp_s, seq=self._seq, accel_mps2=a, steer_rad=d,
                       mode=mode, solver_status=status[:200], solve_time_ms=solve_ms,

@@ -197,6 +197,19 @@ class _Polyline:
                 tail / max(math.hypot(tail[0], tail[1]), 1e-9))
 
 
+def _gradient(f: np.ndarray, ds: float) -> np.ndarray:
+    """``np.gradient(f, ds, axis=0)`` (uniform spacing, first-order edges): the same
+    arithmetic, so the same bits, without its generic set-up (~4x faster on these
+    short arrays; every candidate and every reference takes two)."""
+    if len(f) < 2:
+        raise ValueError("a gradient needs at least two samples")
+    out = np.empty_like(f)
+    out[1:-1] = (f[2:] - f[:-2]) / (2.0 * ds)
+    out[0] = (f[1] - f[0]) / ds
+    out[-1] = (f[-1] - f[-2]) / ds
+    return out
+
+
 def _dedupe(pts: np.ndarray) -> np.ndarray:
     if len(pts) < 2:
         return pts
@@ -494,8 +507,8 @@ def _control_points(line: _Polyline, s0_m: float, x_m: float, y_m: float,
     ds = 0.1
     ss = np.arange(s0_m, s0_m + lookahead_m + 0.5 * ds, ds)
     p = line.at(ss)
-    d = np.gradient(p, ds, axis=0)
-    dd = np.gradient(d, ds, axis=0)
+    d = _gradient(p, ds)
+    dd = _gradient(d, ds)
     kappa = np.abs(d[:, 0] * dd[:, 1] - d[:, 1] * dd[:, 0])
     win = min(41, len(kappa))
     kappa = np.convolve(kappa, np.ones(win) / win, mode="same")
@@ -503,7 +516,7 @@ def _control_points(line: _Polyline, s0_m: float, x_m: float, y_m: float,
     cum = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * ds)])
     s = np.interp(np.arange(1, POINTS_ALONG + 1) / POINTS_ALONG, cum / cum[-1], ss)
     pts = line.at(s)
-    return ((float(x_m), float(y_m)),) + tuple((float(px), float(py)) for px, py in pts)
+    return ((float(x_m), float(y_m)),) + tuple(map(tuple, pts.tolist()))
 
 
 def _side(line_from: _Polyline, s_m: float, other: _Polyline) -> float:
@@ -675,8 +688,8 @@ def _path_geometry(points: np.ndarray, ds_m: float
     length = max(line.length_m, ds_m)
     s = np.arange(0.0, length + ds_m, ds_m)
     xy = line.at(s)
-    d = np.gradient(xy, ds_m, axis=0)
-    dd = np.gradient(d, ds_m, axis=0)
+    d = _gradient(xy, ds_m)
+    dd = _gradient(d, ds_m)
     yaw = np.arctan2(d[:, 1], d[:, 0])
     speed2 = np.maximum(np.sum(d * d, axis=1), 1e-9)
     kappa = (d[:, 0] * dd[:, 1] - d[:, 1] * dd[:, 0]) / speed2**1.5

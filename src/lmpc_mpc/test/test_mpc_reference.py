@@ -149,3 +149,17 @@ def test_an_agent_going_against_its_lane_is_forecast_along_its_heading() -> None
     right = wrong.model_copy(update={"yaw_rad": math.pi})
     xy = forecast(right, None, map_=m, horizon=30, dt_s=0.1).xy_m
     assert xy[-1][0] == pytest.approx(100.0 - 3.6, abs=0.05)
+
+
+def test_the_hot_path_gradient_is_numpys_to_the_last_bit() -> None:
+    from lmpc_mpc.reference import _gradient
+
+    rng = np.random.default_rng(3)
+    for n in (2, 3, 601):
+        for ds in (0.1, 0.5, 0.37):
+            f = rng.normal(scale=100.0, size=(n, 2))
+            assert np.array_equal(_gradient(f, ds), np.gradient(f, ds, axis=0))
+            assert np.array_equal(_gradient(_gradient(f, ds), ds),
+                                  np.gradient(np.gradient(f, ds, axis=0), ds, axis=0))
+    with pytest.raises(ValueError, match="two samples"):
+        _gradient(np.zeros((1, 2)), 0.1)
