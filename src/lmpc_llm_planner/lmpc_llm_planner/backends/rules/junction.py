@@ -59,7 +59,11 @@ def travel_time_s(dist_m: float, *, v0_mps: float, accel_mps2: float, vmax_mps: 
 
 
 def go_accel_mps2(inp: RuleInputs) -> float:
-    """The acceleration a clear time assumes: what the rules ask for when the ego goes."""
+    """The acceleration a clear time assumes: what the rules ask for when the ego goes.
+    The conservative style goes gently (the mildest accelerating interval, ~1 m/s^2),
+    so its clear times are longer and it takes only the larger gaps."""
+    if inp.intent.style == "conservative":
+        return mid(inp.accel[mildest_accel(inp.accel)])
     return max(mid(inp.accel[accel_index(inp.accel, inp.cfg.turn_accel_mps2)]),
                inp.cfg.turn_accel_mps2)
 
@@ -81,15 +85,19 @@ def stop_can_wait(inp: RuleInputs, v_mps: float, d_stop_m: float) -> bool:
         d_stop_m - v_mps * cfg.replan_s > v_mps * v_mps / (2.0 * cfg.commit_decel_mps2) + 5.0
 
 
-def go_briskly(inp: RuleInputs, plan: Plan) -> None:
-    """Accelerate through the junction (the go interval)."""
-    plan.accel_index = accel_index(inp.accel, inp.cfg.turn_accel_mps2)
+def go_briskly(inp: RuleInputs, plan: Plan, *, committed: bool = False) -> None:
+    """Accelerate through the junction (the go interval; the conservative style's gentle
+    one, ``go_accel_mps2``, except when committed: then it clears briskly too)."""
+    if inp.intent.style == "conservative" and not committed:
+        plan.accel_index = mildest_accel(inp.accel)
+    else:
+        plan.accel_index = accel_index(inp.accel, inp.cfg.turn_accel_mps2)
     plan.speed_set = True
 
 
 def commit(inp: RuleInputs, plan: Plan, note: str) -> str:
     """Too close (or too far in) to stop: clear the junction briskly, safety high."""
-    go_briskly(inp, plan)
+    go_briskly(inp, plan, committed=True)
     plan.weights["safety"] = "high"
     plan.notes.append(note)
     return "commit"
