@@ -1,8 +1,9 @@
-"""Collisions + fails and mean O.C. per family of the oracle's rows at 2.5 s latency
-against mpc, lmpc-rules at 0 / 2.5 s and the oracle at 0 s, on the seeds the new rows
-cover (seeds 0-9; the other rows from the folders named below, relative to this one).
+"""Collisions + fails and mean O.C. per family of the oracle's rows at a decision latency
+against mpc, lmpc-rules at 0 s and at that latency and the oracle at 0 s, on the seeds
+every oracle-latency file covers (seeds 0-9; the other rows from the folders named
+below, relative to this one). Each argument is LATENCY=FILE (a bare FILE is 2.5 s).
 
-    python3 cmp.py p2.5/results.csv
+    python3 cmp.py 2.5=p2.5/results.csv 1.5=p1.5/results.csv
 """
 import csv
 import sys
@@ -30,17 +31,21 @@ def cell(rows, keys):
 
 def main() -> None:
     t1 = DATA / "latency_2026-12-04" / "t1" / "results.csv"
+    runs = [a.split("=", 1) if "=" in a else ["2.5", a] for a in sys.argv[1:]]
     columns = {
         "mpc": load([t1], "mpc"),
         "rules 0": load([t1], "lmpc-rules"),
-        "rules 2.5": load([DATA / "latency_2026-12-04" / "p2.5" / "results.csv"], "lmpc-rules"),
+        **{f"rules {lat}": load([DATA / "latency_2026-12-04" / f"p{lat}" / "results.csv"],
+                                "lmpc-rules") for lat, _ in runs},
         "oracle 0": load(sorted((DATA / "oracle_c16_test_2026-12-04").glob("results_*.csv")),
                          "lmpc-oracle"),
-        "oracle 2.5": load([sys.argv[1]], "lmpc-oracle"),
+        **{f"oracle {lat}": load([path], "lmpc-oracle") for lat, path in runs},
     }
-    new = columns["oracle 2.5"]
-    for fam in sorted({k[0] for k in new}):
-        keys = sorted(k for k in new if k[0] == fam)
+    new = [columns[f"oracle {lat}"] for lat, _ in runs]
+    for fam in sorted({k[0] for rows in new for k in rows}):
+        keys = sorted(set.intersection(*({k for k in rows if k[0] == fam} for rows in new)))
+        if not keys:
+            continue
         print(fam, "seeds", [k[1] for k in keys])
         print("  " + " | ".join(f"{name} {cell(rows, keys)}" for name, rows in columns.items()))
 
