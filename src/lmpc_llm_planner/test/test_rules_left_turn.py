@@ -161,12 +161,19 @@ def test_a_car_standing_short_of_the_crossing_waits_for_an_ego_in_the_junction(
     assert left_turn_rule(behind, fresh_plan(behind)) == "yield"
 
 
+def _normal_and_careful(left_turn_map, obs_factory, car, cfgs, *, ego_y_m, ego_v_mps):
+    """The rule inputs of the ego at (``ego_y_m``, ``ego_v_mps``) with the oncoming
+    ``car``, without an instruction and with a conservative one."""
+    obs = obs_factory(left_turn_map, ego_y_m=ego_y_m, ego_v_mps=ego_v_mps, agents=[car])
+    return (_inputs(obs, *cfgs),
+            _inputs(obs, *cfgs, instruction="drive conservatively"))
+
+
 def test_the_conservative_style_turns_gently_and_so_needs_a_larger_gap(
         left_turn_map, obs_factory, oncoming_factory, planner_config, mpc_config):
-    obs = obs_factory(left_turn_map, ego_y_m=-12.0, ego_v_mps=3.0,
-                      agents=[oncoming_factory("car1", y_m=60.0, v_mps=7.0)])
-    normal = _inputs(obs, planner_config, mpc_config)
-    careful = _inputs(obs, planner_config, mpc_config, instruction="drive conservatively")
+    normal, careful = _normal_and_careful(
+        left_turn_map, obs_factory, oncoming_factory("car1", y_m=60.0, v_mps=7.0),
+        (planner_config, mpc_config), ego_y_m=-12.0, ego_v_mps=3.0)
     # a gentler go (the mildest accelerating interval) clears the crossing later
     assert go_accel_mps2(careful) < go_accel_mps2(normal)
     assert _conflict(careful, "car1").t_clear_s > _conflict(normal, "car1").t_clear_s
@@ -182,10 +189,9 @@ def test_the_conservative_style_turns_gently_and_so_needs_a_larger_gap(
 
 def test_a_committed_conservative_ego_still_clears_briskly(
         left_turn_map, obs_factory, oncoming_factory, planner_config, mpc_config):
-    obs = obs_factory(left_turn_map, ego_y_m=-7.0, ego_v_mps=6.0,
-                      agents=[oncoming_factory("car1", y_m=30.0, v_mps=10.0)])
-    normal = _inputs(obs, planner_config, mpc_config)
-    careful = _inputs(obs, planner_config, mpc_config, instruction="drive conservatively")
+    normal, careful = _normal_and_careful(
+        left_turn_map, obs_factory, oncoming_factory("car1", y_m=30.0, v_mps=10.0),
+        (planner_config, mpc_config), ego_y_m=-7.0, ego_v_mps=6.0)
     p_n, p_c = fresh_plan(normal), fresh_plan(careful)
     assert left_turn_rule(careful, p_c) == left_turn_rule(normal, p_n) == "commit"
     assert accel_of(careful, p_c) == accel_of(normal, p_n) > 0.0
