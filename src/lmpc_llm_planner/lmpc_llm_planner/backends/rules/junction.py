@@ -58,14 +58,22 @@ def travel_time_s(dist_m: float, *, v0_mps: float, accel_mps2: float, vmax_mps: 
     return t_acc + (dist_m - d_acc) / vmax
 
 
-def go_accel_mps2(inp: RuleInputs) -> float:
-    """The acceleration a clear time assumes: what the rules ask for when the ego goes.
-    The conservative style goes gently (the mildest accelerating interval, ~1 m/s^2),
-    so its clear times are longer and it takes only the larger gaps."""
+def _go_index(inp: RuleInputs) -> int:
+    """The interval the ego goes with: the go interval (``turn_accel_mps2``), or the
+    mildest accelerating one for the conservative style (a careful driver turns gently)."""
     if inp.intent.style == "conservative":
-        return mid(inp.accel[mildest_accel(inp.accel)])
-    return max(mid(inp.accel[accel_index(inp.accel, inp.cfg.turn_accel_mps2)]),
-               inp.cfg.turn_accel_mps2)
+        return mildest_accel(inp.accel)
+    return accel_index(inp.accel, inp.cfg.turn_accel_mps2)
+
+
+def go_accel_mps2(inp: RuleInputs) -> float:
+    """The acceleration a clear time assumes: what the rules ask for when the ego goes
+    (``_go_index``; the conservative style's gentle go gives longer clear times, so it
+    takes only the larger gaps)."""
+    accel = mid(inp.accel[_go_index(inp)])
+    if inp.intent.style == "conservative":
+        return accel
+    return max(accel, inp.cfg.turn_accel_mps2)
 
 
 def stop_brake_limit_mps2(inp: RuleInputs) -> float:
@@ -86,12 +94,10 @@ def stop_can_wait(inp: RuleInputs, v_mps: float, d_stop_m: float) -> bool:
 
 
 def go_briskly(inp: RuleInputs, plan: Plan, *, committed: bool = False) -> None:
-    """Accelerate through the junction (the go interval; the conservative style's gentle
-    one, ``go_accel_mps2``, except when committed: then it clears briskly too)."""
-    if inp.intent.style == "conservative" and not committed:
-        plan.accel_index = mildest_accel(inp.accel)
-    else:
-        plan.accel_index = accel_index(inp.accel, inp.cfg.turn_accel_mps2)
+    """Accelerate through the junction with ``_go_index``'s interval; committed, always
+    with the go interval (a committed ego clears briskly, whatever the style)."""
+    plan.accel_index = accel_index(inp.accel, inp.cfg.turn_accel_mps2) if committed \
+        else _go_index(inp)
     plan.speed_set = True
 
 
