@@ -59,7 +59,8 @@ import yaml
 from lmpc_bridge.evaluation.decisions import decision_stats, stats_md
 from lmpc_bridge.evaluation.executors import EXECUTORS, ExecutorError
 from lmpc_bridge.evaluation.replay import replay_check
-from lmpc_bridge.evaluation.rows import latency_cells, parse_seeds, read_rows, write_rows
+from lmpc_bridge.evaluation.rows import (latency_cells, parse_seeds, read_rows, resume_rows,
+                                         write_rows)
 from lmpc_bridge.evaluation.scenes import RunSettings, run_scenes
 from lmpc_bridge.evaluation.situations import (
     SITUATION_COLUMNS,
@@ -130,7 +131,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--resume", action="store_true",
                     help="keep the rows of OUT/results.csv (an earlier, interrupted run of "
                          "the same code) and run only the scenes it lacks; error rows are "
-                         "run again")
+                         "run again, rows of scenes outside this selection are kept as they "
+                         "are; a scene that ran at another simulated latency is an error")
     ap.add_argument("--replay-from", type=Path, metavar="DIR",
                     help="lmpc-replay: the finished run folder whose decision logs "
                          "(DIR/decisions/) answer and whose results.csv is compared with")
@@ -268,7 +270,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     rows: list[dict[str, Any]] = []
     if args.resume:
         try:
-            rows = read_rows(args.out / "results.csv", set(jobs), latency=latency)
+            rows, others = resume_rows(args.out / "results.csv", set(jobs), latency=latency)
         except (OSError, ValueError, KeyError) as exc:
             print(f"benchmark: --resume: cannot read {args.out / 'results.csv'}: {exc}",
                   file=sys.stderr)
@@ -276,7 +278,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         done = {(r["method"], r["family"], r["seed"]) for r in rows}
         jobs = [j for j in jobs if j not in done]
         print(f"benchmark: --resume: {len(rows)} scene(s) kept from "
-              f"{args.out / 'results.csv'}, {len(jobs)} to run", flush=True)
+              f"{args.out / 'results.csv'}, {len(jobs)} to run"
+              + (f"; {len(others)} row(s) of scenes outside this selection kept as they "
+                 "are (in results.csv and the tables)" if others else ""), flush=True)
+        rows += others
     kept = len(rows)
     t0 = time.monotonic()
     log_dir = args.out / "decisions"

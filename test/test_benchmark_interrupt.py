@@ -1,7 +1,8 @@
 """An interrupted benchmark keeps what it finished: results.csv grows with every
 finished scene, and SIGTERM (or Ctrl-C) writes results.csv, summary.json and table.md
 of the finished scenes, marked partial, stops the workers and exits 130; ``--resume``
-then runs only the scenes the interrupted run lacks."""
+then runs only the scenes the interrupted run lacks (and keeps the rows of scenes outside
+its selection)."""
 from __future__ import annotations
 
 import csv
@@ -64,6 +65,17 @@ def test_sigterm_writes_the_finished_scenes_and_stops_the_workers(tmp_path: Path
     summary = json.loads((out / "summary.json").read_text())
     assert summary["partial"] is None and summary["resumed_rows"] == finished
     assert summary["families"]["usi"]["mpc"]["scenes"] == 4
+    # a resume with another selection runs it and keeps the rows outside it
+    more = subprocess.run(
+        [sys.executable, str(REPO / "scripts" / "benchmark.py"), "--families", "usi",
+         "--seeds", "4", "--methods", "mpc", "--workers", "1", "--out", str(out),
+         "--resume"], capture_output=True, text=True, timeout=300)
+    assert more.returncode == 0, more.stderr[-2000:]
+    assert "4 row(s) of scenes outside this selection kept" in more.stdout
+    with open(out / "results.csv") as fh:
+        assert sorted(int(r["seed"]) for r in csv.DictReader(fh)) == [0, 1, 2, 3, 4]
+    assert json.loads((out / "summary.json").read_text())[
+        "families"]["usi"]["mpc"]["scenes"] == 5
 
 
 def test_resume_names_a_malformed_results_file(tmp_path: Path) -> None:

@@ -13,7 +13,8 @@ import pytest
 
 from lmpc_bridge.evaluation.executors import make_executor
 
-from lmpc_bridge.evaluation.rows import COLUMNS, error_row, latency_cells, parse_seeds, read_rows
+from lmpc_bridge.evaluation.rows import (COLUMNS, error_row, latency_cells, parse_seeds, read_rows,
+                                         resume_rows, write_rows)
 from lmpc_bridge.evaluation.table import aggregate, table2_md, table_md
 
 
@@ -106,3 +107,31 @@ def test_read_rows_of_a_file_written_before_held_insertions(tmp_path: Path) -> N
         w.writerow(row)
     with pytest.raises(KeyError, match="stale_steps"):
         read_rows(path, {("mpc", "usi", 3)})
+
+
+def test_resume_keeps_the_rows_of_other_scenes_and_refuses_another_latency(
+        tmp_path: Path) -> None:
+    """``--resume`` with a narrower selection keeps the file's other rows (it once dropped
+    them when it rewrote results.csv); an error row of the selection runs again; a scene
+    of the selection recorded at another simulated latency is refused, naming its line."""
+    def row(method: str, family: str, seed: int, outcome: str = "reached",
+            latency: tuple = (None, None)) -> dict:
+        r = error_row(method, family, seed, "x", latency)
+        r.update({c: 1.0 for c in COLUMNS if isinstance(r[c], float)})
+        r.update(latency_cells(method, latency))
+        r["outcome"], r["fail"] = outcome, int(outcome == "error")
+        return r
+
+    at_1_5 = (1.5, 1.5)
+    path = tmp_path / "results.csv"
+    write_rows(path, [row("lmpc-oracle", "rab", 0, latency=at_1_5),
+                      row("lmpc-oracle", "si", 0, latency=at_1_5),
+                      row("lmpc-oracle", "si", 1, "error", at_1_5), row("mpc", "si", 0)])
+    jobs = {("lmpc-oracle", "si", s) for s in (0, 1, 2)}
+    kept, others = resume_rows(path, jobs, latency=at_1_5)
+    assert [(r["family"], r["seed"]) for r in kept] == [("si", 0)]
+    assert sorted((r["method"], r["family"]) for r in others) == [
+        ("lmpc-oracle", "rab"), ("mpc", "si")]
+    assert others[0]["latency_s"] == "1.5"  # kept as written, whatever its latency
+    with pytest.raises(ValueError, match=r"line \d: si seed 0 lmpc-oracle ran at .*1\.5"):
+        resume_rows(path, jobs, latency=(2.5, 1.5))

@@ -5,7 +5,7 @@ import argparse
 import csv
 import math
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Iterator, Optional, Sequence
 
 Latency = tuple[Optional[float], Optional[float]]
 """(decision, emergency) latency to simulate, s; None: the backend's own. The composition
@@ -92,9 +92,41 @@ def read_rows(path: Path, jobs: set[tuple[str, str, int]], *,
     seed)), ran with the same simulated ``latency`` and did not end in ``error``, typed as
     ``run_scene`` returns them (latency cells as text; a missing file: none). Raises
     ``ValueError`` / ``KeyError`` naming a malformed row."""
+    return [row for _, row in _typed_rows(path)
+            if row["outcome"] != "error" and _same_latency(row, latency)
+            and (row["method"], row["family"], row["seed"]) in jobs]
+
+
+def resume_rows(path: Path, jobs: set[tuple[str, str, int]], *,
+                latency: Latency = (None, None)
+                ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """``--resume``: (the rows of ``jobs`` to keep, as :func:`read_rows` reads them; the
+    rows of other scenes, kept as they are, so a resumed run with a narrower selection
+    loses nothing of the file). Raises ``ValueError`` naming the line where a scene of
+    ``jobs`` ran at another simulated latency (mixing two latencies in one file would
+    average them in one table row), and as :func:`read_rows` for a malformed file."""
+    kept, others = [], []
+    for line, row in _typed_rows(path):
+        if (row["method"], row["family"], row["seed"]) not in jobs:
+            others.append(row)
+        elif not _same_latency(row, latency):
+            want = latency_cells(row["method"], latency)
+            raise ValueError(
+                f"line {line}: {row['family']} seed {row['seed']} {row['method']} ran at "
+                f"decision / emergency latency {row['latency_s'] or '-'} / "
+                f"{row['emergency_latency_s'] or '-'} s, this run simulates "
+                f"{want['latency_s'] or '-'} / {want['emergency_latency_s'] or '-'} s; "
+                "resume with the same latency options or write to another --out")
+        elif row["outcome"] != "error":
+            kept.append(row)
+    return kept, others
+
+
+def _typed_rows(path: Path) -> Iterator[tuple[int, dict[str, Any]]]:
+    """(line, row) of a ``results.csv``, typed as ``run_scene`` returns rows (none for a
+    missing file); ``ValueError`` / ``KeyError`` name a malformed line."""
     if not path.exists():
-        return []
-    rows = []
+        return
     with open(path, newline="") as fh:
         for line, raw in enumerate(csv.DictReader(fh), start=2):
             raw = {**_ADDED_COLUMNS, **raw}
@@ -102,18 +134,17 @@ def read_rows(path: Path, jobs: set[tuple[str, str, int]], *,
             if missing:
                 raise KeyError(f"line {line}: no column(s) {missing}")
             try:
-                row: dict[str, Any] = {
-                    c: raw[c] if c in _TEXT_COLUMNS
-                    else int(raw[c]) if c in _INT_COLUMNS else float(raw[c])
-                    for c in COLUMNS}
+                yield line, {c: raw[c] if c in _TEXT_COLUMNS
+                             else int(raw[c]) if c in _INT_COLUMNS else float(raw[c])
+                             for c in COLUMNS}
             except ValueError as exc:
                 raise ValueError(f"line {line}: {exc}") from None
-            want = latency_cells(row["method"], latency)
-            same_latency = all(_same_cell(row[k], v) for k, v in want.items())
-            if row["outcome"] != "error" and same_latency and \
-                    (row["method"], row["family"], row["seed"]) in jobs:
-                rows.append(row)
-    return rows
+
+
+def _same_latency(row: dict[str, Any], latency: Latency) -> bool:
+    """The row ran with the simulated ``latency`` this run writes."""
+    want = latency_cells(row["method"], latency)
+    return all(_same_cell(row[k], v) for k, v in want.items())
 
 
 def _same_cell(text: str, value: Any) -> bool:
