@@ -26,6 +26,8 @@ large (a far guess after a jump), see :meth:`RtiQp.iterate`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
+
 import casadi as ca
 import numpy as np
 
@@ -62,6 +64,9 @@ class RtiStep:
     qp_iterations: int
     """QP solver iterations summed over the SQP steps taken."""
     sqp_steps: int
+    last_move: tuple[float, float] = (0.0, 0.0)
+    """How far the last step taken moved the planned controls: the largest change of an
+    acceleration (m/s^2) and of a steering angle (rad) over the horizon."""
 
 
 class RtiQp:
@@ -74,7 +79,12 @@ class RtiQp:
     """
 
     def __init__(self, *, horizon: int, dt_s: float, vehicle: VehicleParams, n_slots: int,
-                 qp_solver: str = "hpipm", qp_iter_max: int = 50) -> None:
+                 qp_solver: str = "hpipm", qp_iter_max: int = 50,
+                 data: Optional[tuple[ca.Function, dict[str, np.ndarray]]] = None) -> None:
+        """``data``: a :meth:`cache_entry` of the same inputs (loaded from the solver cache,
+        ``lmpc_mpc.solver_cache``) instead of building the QP data function (~0.1-0.3 s
+        per size; the QP solver itself is made anew: HPIPM's interface does not
+        deserialise)."""
         if qp_solver not in QP_SOLVERS:
             raise RtiError(f"qp_solver must be one of {QP_SOLVERS}, got {qp_solver!r}")
         self.n = horizon
@@ -85,7 +95,20 @@ class RtiQp:
         if qp_iter_max < 1:
             raise RtiError(f"qp_iter_max must be >= 1, got {qp_iter_max}")
         self._qp_iter_max = qp_iter_max
-        self._build(dt_s, vehicle, qp_solver)
+        if data is None:
+            self._build(dt_s, vehicle)
+        else:
+            fn, arrays = data
+            self._data = fn
+            self._lbx, self._ubx = arrays["lbx"], arrays["ubx"]
+            self._lbg, self._ubg = arrays["lbg"], arrays["ubg"]
+            self.n_p = int(arrays["n_p"])
+        self._make_qp(qp_solver)
+
+    def cache_entry(self) -> tuple[ca.Function, dict[str, np.ndarray]]:
+        """What the solver cache keeps of this QP: the data function and the bounds."""
+        return self._data, {"lbx": self._lbx, "ubx": self._ubx, "lbg": self._lbg,
+                            "ubg": self._ubg, "n_p": np.array(self.n_p)}
 
     # -- layout helpers ------------------------------------------------------------------
     def to_stages(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -107,7 +130,7 @@ class RtiQp:
         return z
 
     # -- building ------------------------------------------------------------------------
-    def _build(self, dt: float, veh: VehicleParams, qp_solver: str) -> None:
+    def _build(self, dt: float, veh: VehicleParams) -> None:
         n, m = self.n, self.n_slots
         f = bicycle_function(veh)
         sym = stage_symbols(n, m, self.nu)
@@ -188,12 +211,16 @@ class RtiQp:
         self._ubx = np.array(ubx)
         self._lbg = np.array(lbg)
         self._ubg = np.array(ubg)
+
+    def _make_qp(self, qp_solver: str) -> None:
+        """The structured QP solver on the data function's Hessian and Jacobian patterns."""
+        n, m = self.n, self.n_slots
         ng = [1 + m] * n + [0]
         opts: dict = {"N": n, "nx": [NX] * (n + 1), "nu": [self.nu] * n + [0], "ng": ng,
                       "error_on_fail": False, "print_time": False}
         opts["hpipm"] = {**_HPIPM_OPTIONS, "iter_max": self._qp_iter_max}
-        self._qp = ca.conic("rti_qp", qp_solver, {"h": hess.sparsity(), "a": jg.sparsity()},
-                            opts)
+        self._qp = ca.conic("rti_qp", qp_solver, {"h": self._data.sparsity_out("h"),
+                                                  "a": self._data.sparsity_out("a")}, opts)
 
     # -- solving -------------------------------------------------------------------------
     # Calling the HPIPM conic inside an MX function (data and QP in one call) segfaulted
@@ -212,6 +239,7 @@ class RtiQp:
         ubx = self._ubx.copy()
         qp_iters = 0
         taken = 0
+        move = (0.0, 0.0)
         for _ in range(steps):
             h, grad, a, c, _cost = self._data(z, p)
             lbx[:NX] = x0
@@ -231,7 +259,7 @@ class RtiQp:
                 return RtiStep(False, "QP gave non-finite numbers", z, qp_iters, taken)
             z = z + dz
             du = dz[: self.n * self.stage_len].reshape(self.n, self.stage_len)[:, NX:NX + NU]
-            if (float(np.max(np.abs(du[:, 0]))) <= accel_tol_mps2
-                    and float(np.max(np.abs(du[:, 1]))) <= steer_tol_rad):
+            move = (float(np.max(np.abs(du[:, 0]))), float(np.max(np.abs(du[:, 1]))))
+            if move[0] <= accel_tol_mps2 and move[1] <= steer_tol_rad:
                 break
-        return RtiStep(True, "RTI_Step_Succeeded", z, qp_iters, taken)
+        return RtiStep(True, "RTI_Step_Succeeded", z, qp_iters, taken, move)

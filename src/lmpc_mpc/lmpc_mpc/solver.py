@@ -365,14 +365,22 @@ class MpcSolver:
                 self.compiled(size)
 
     def rti(self, n_slots: int) -> RtiQp:
-        """The RTI QP of ``n_slots`` obstacle slots (built on first use, ~0.1-0.5 s)."""
+        """The RTI QP of ``n_slots`` obstacle slots (built on first use, ~0.1-0.3 s, or its
+        data function loaded from the on-disk cache, ~0.01-0.03 s)."""
         if n_slots not in self._rti:
+            key = solver_cache.entry_key(
+                self.config.model_dump_json(), repr(self.vehicle), str(n_slots),
+                self.solver_name)
+            hit = solver_cache.load(key)
             # max_iterations caps the QP solver's iterations per step (an RTI step has no
             # NLP iterations to cap; HPIPM's own cap of 50 stays the upper limit): a QP
             # that needs more is a failed solve
-            self._rti[n_slots] = RtiQp(horizon=self.n, dt_s=self.dt_s, vehicle=self.vehicle,
-                                       n_slots=n_slots, qp_solver=self.config.rti_qp_solver,
-                                       qp_iter_max=min(self.config.max_iterations, 50))
+            qp = RtiQp(horizon=self.n, dt_s=self.dt_s, vehicle=self.vehicle,
+                       n_slots=n_slots, qp_solver=self.config.rti_qp_solver,
+                       qp_iter_max=min(self.config.max_iterations, 50), data=hit)
+            if hit is None:
+                solver_cache.store(key, *qp.cache_entry())
+            self._rti[n_slots] = qp
         return self._rti[n_slots]
 
     def compiled(self, n_slots: int) -> _Compiled:
@@ -730,6 +738,17 @@ class MpcSolver:
         elapsed = time.perf_counter() - t0
         if not step.ok:
             return self._fail(f"not converged: {step.status}", t0, step.sqp_steps, elapsed)
+        if cold and (step.last_move[0] > cfg.rti_step_accel_mps2
+                     or step.last_move[1] > cfg.rti_step_steer_rad):
+            # a cold / reconverge iteration still moving a planned control by more than a
+            # warm step may: no solution yet (si seed 24 lmpc-rules: such a plan read -1.6
+            # then +3 m/s^2 and the ego entered a left turn too fast where FATROP, failing
+            # on the same problem, braked); treated as FATROP's failure is (shifted plan,
+            # then the brake)
+            return self._fail(
+                f"not converged: cold RTI still moving after {step.sqp_steps} steps "
+                f"({step.last_move[0]:.2f} m/s^2, {step.last_move[1]:.3f} rad)",
+                t0, step.sqp_steps, elapsed)
         xs, us = qp.to_stages(step.z)
         out = np.empty((n + 1, NX + NU))
         out[:, :NX] = xs

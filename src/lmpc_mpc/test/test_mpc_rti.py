@@ -142,3 +142,20 @@ def test_solver_env_overrides_the_file(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(SOLVER_ENV, "osqp")
     with pytest.raises(MpcConfigError, match="solver"):
         load_mpc_config()
+
+
+def test_a_cold_iteration_still_moving_is_a_failure() -> None:
+    """A cold start (or a reconverge after a decision) whose last Gauss-Newton step still
+    moved a planned control by more than a warm step may (``rti_step_*``) has no solution
+    yet: a failure (the caller's shifted plan, then the brake), as FATROP's unconverged
+    solve is; the same problem with the default cold steps converges, and a warm step
+    is never judged by it."""
+    prob = _lead_problem(gap_m=14.0, v0=9.0, lead_v=3.0)
+    one = MpcSolver(RTI.model_copy(update={"rti_cold_iterations": 1}))
+    res = one.solve(prob)
+    assert not res.success and "cold RTI still moving after 1 steps" in res.status, res.status
+    assert one._warm is None
+    five = MpcSolver(RTI)
+    assert five.solve(prob).success
+    warm = five.solve(dataclasses.replace(prob, x0=(0.5, 0.0, 0.0, 9.0)))
+    assert warm.success and warm.iterations == 1

@@ -72,3 +72,25 @@ def test_off_disables_the_cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     MpcSolver(CFG).compiled(5)
     assert solver_cache.cache_dir() is None and not any(tmp_path.iterdir())
+
+
+def test_a_loaded_rti_drives_exactly_like_a_built_one(
+        cache: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The RTI's QP data function comes from the cache (its HPIPM solver is made anew:
+    that interface does not deserialise) and gives the same controls to the last digit."""
+    rti = CFG.model_copy(update={"solver": "sqp_rti"})
+
+    def run() -> np.ndarray:
+        ctrl = MpcController(rti, solver=MpcSolver(rti))
+        controls, states = S.follow_lead_car(ctrl, 30, rti.dt_s)
+        assert states[-1][3] < 9.5  # it slowed behind the lead
+        return np.array([u + x for u, x in zip(controls, states)])
+
+    built = run()
+    assert len(list(cache.glob("*.casadi"))) >= 1
+
+    def no_build(self: object, *args: object) -> None:
+        raise AssertionError("built the RTI data although it is cached")
+
+    monkeypatch.setattr("lmpc_mpc.rti.RtiQp._build", no_build)
+    assert np.array_equal(built, run())
