@@ -345,11 +345,13 @@ def route_path(map: MapSnapshot) -> Optional[RoutePath]:
     return _index(map).route
 
 
-SHARP_TURN_RAD = math.radians(110.0)
+SHARP_TURN_RAD = math.radians(100.0)
 """A route junction (a run of internal lanes) turning by more than this is a sharp turn:
 the MPC then tracks the route's own centreline through it (:func:`sharp_turn_path`).
 The ego routes of the five families turn by at most 90 degrees at a junction
-(seeds 0-24; docs/lmpc_mpc.md)."""
+(seeds 0-24; docs/lmpc_mpc.md). 100, not 110: examples/city.yaml's right turn of 109.9
+degrees through a 4.75 m radius (the car turns no tighter than ~4.2 m) was left to the
+Bezier references, and lmpc-rules ran wide onto the oncoming lanes there."""
 SHARP_EXIT_M = 5.0
 """The sharp-turn path is kept this far past the turn's end (the car straightens out)."""
 SHARP_LANE_CHANGE_M = 20.0
