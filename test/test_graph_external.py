@@ -91,6 +91,13 @@ def test_graph_runs_a_scene_file(tmp_path: Path, domain_id: int) -> None:
     assert run.summary["outcome"] == "reached" and run.summary["collisions"] == 0
     assert run.episode["scenario"] == "rab_tls" and run.summary["decisions"] > 0
     assert not graph_processes(domain_id)
+    # the run folder draws from the scene file it names (render.py run RUN_DIR once
+    # failed: "unknown scenario family 'rab_tls'")
+    from lmpc_bridge import render
+
+    assert run.episode["scene_file"] == str(scene.resolve())
+    data = render.load_run(Path(run.summary["run_dir"]))
+    assert data.map.lanes and len(data.record.steps) == run.episode["metrics"]["steps"]
 
 
 def test_graph_bad_scene_fails_clearly(tmp_path: Path, domain_id: int) -> None:

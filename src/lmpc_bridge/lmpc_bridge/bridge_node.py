@@ -538,6 +538,8 @@ class BridgeNode(BridgeBase):
             "end_epoch_s": time.time(),
             "profile_ms": self.stage_times.summary(),
             "warnings": warnings,
+            # a scene file's run is rebuilt from the file, not a family (render.py run)
+            "scene_file": self.cfg.scene_file or None,
             "record": record.to_json(),
         }
         path = self.run_dir / "episode.json"

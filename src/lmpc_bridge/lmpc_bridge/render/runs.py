@@ -123,15 +123,23 @@ def read_decision_log(path: Path) -> dict[str, DecisionInfo]:
     return out
 
 
-def scene_map(family: str, seed: int, *, work_dir: Path) -> tuple[MapSnapshot, Any]:
-    """Build (or load from ``work_dir``'s cache) the scene and its ``MapSnapshot``."""
+def scene_map(family: str, seed: int, *, work_dir: Path,
+              scene_file: Optional[str] = None) -> tuple[MapSnapshot, Any]:
+    """Build (or load from ``work_dir``'s cache) the scene and its ``MapSnapshot``: the
+    family's template, or the scene file a ``--scene`` run drove."""
     from lmpc_bridge.mapping import build_map
     from lmpc_bridge.scenarios import SceneError, build_scene
 
     try:
-        scene = build_scene(family, seed, work_dir=work_dir)
+        if scene_file:
+            from lmpc_bridge.scenarios.external import build_external_scene
+
+            scene = build_external_scene(scene_file, work_dir=work_dir)
+        else:
+            scene = build_scene(family, seed, work_dir=work_dir)
     except SceneError as exc:
-        raise RenderError(f"cannot build scene {family}/{seed}: {exc}") from exc
+        what = scene_file or f"{family}/{seed}"
+        raise RenderError(f"cannot build scene {what}: {exc}") from exc
     snapshot, _ = build_map(scene)
     return snapshot, scene
 
@@ -139,8 +147,9 @@ def scene_map(family: str, seed: int, *, work_dir: Path) -> tuple[MapSnapshot, A
 def load_run(run_dir: Path, *, work_dir: Optional[Path] = None) -> RunData:
     """Read a run folder (``episode.json`` + optional ``decisions.jsonl``) and its map.
 
-    The map is rebuilt from the record's family and seed; a scene cache in
-    ``run_dir/scene`` (where the graph's bridge keeps it) is reused when present.
+    The map is rebuilt from the record's family and seed, or from the scene file a
+    ``--scene`` run recorded (``scene_file``); a scene cache in ``run_dir/scene`` (where
+    the graph's bridge keeps it) is reused when present.
     """
     episode_path = Path(run_dir) / "episode.json"
     if not episode_path.is_file():
@@ -155,7 +164,8 @@ def load_run(run_dir: Path, *, work_dir: Optional[Path] = None) -> RunData:
     cache = Path(run_dir) / "scene"
     if work_dir is None:
         work_dir = cache if cache.is_dir() else Path(tempfile.mkdtemp(prefix="lmpc-render-"))
-    snapshot, scene = scene_map(record.family, record.seed, work_dir=work_dir)
+    snapshot, scene = scene_map(record.family, record.seed, work_dir=work_dir,
+                                scene_file=episode.get("scene_file"))
     method = str(episode.get("method") or "")
     if not method:
         summary = Path(run_dir) / "summary.json"
