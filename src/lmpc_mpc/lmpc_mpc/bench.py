@@ -117,20 +117,23 @@ def run(*, n_agents: int = 10, steps: int = 100, solver: str = "fatrop",
            "solve_cpu_median_ms": float(np.median(sc)),
            "solve_cpu_p99_ms": float(np.percentile(sc, 99)),
            "iter_median": float(np.median(it)),
-           "iter_max": float(np.max(it)), "failures": float(fails)}
+           "iter_max": float(np.max(it)), "failures": float(fails),
+           # sqp_rti: steps FATROP answered because the RTI did not deliver them
+           "rti_fallbacks": float(mpc.rti_fallbacks)}
     if verbose:
         print(f"{solver} N={cfg.horizon} agents={n_agents}: median {out['median_ms']:.2f} ms, "
               f"p99 {out['p99_ms']:.2f} ms, max {out['max_ms']:.2f} ms, iterations "
               f"{out['iter_median']:.0f} / {out['iter_max']:.0f} (median / max), compute "
               f"{out['compute_median_ms']:.2f} / {out['compute_p99_ms']:.2f} ms, "
-              f"failures {fails}")
+              f"failures {fails}, FATROP fallbacks {mpc.rti_fallbacks} of {steps} steps")
     return out
 
 
 def _table(rows: dict[tuple[int, int, str], dict[str, float]], what: str) -> None:
     head = (f"{'N':>3} {what:>6} {'solver':>9} | {'median':>7} {'p99':>7} {'max':>7} ms"
             f" | {'iter med':>8} {'max':>4} | {'compute med':>11} {'p99':>7} | "
-            f"{'cpu med':>7} {'p99':>7} ms | {'solve cpu':>9} {'p99':>6} ms | fail")
+            f"{'cpu med':>7} {'p99':>7} ms | {'solve cpu':>9} {'p99':>6} ms | fail | "
+            f"FATROP fallbacks")
     print(head)
     print("-" * len(head))
     for (horizon, n_agents, name), r in rows.items():
@@ -139,7 +142,7 @@ def _table(rows: dict[tuple[int, int, str], dict[str, float]], what: str) -> Non
               f"{r['compute_median_ms']:11.2f} {r['compute_p99_ms']:7.2f} | "
               f"{r['compute_cpu_median_ms']:7.2f} {r['compute_cpu_p99_ms']:7.2f}    | "
               f"{r['solve_cpu_median_ms']:9.2f} {r['solve_cpu_p99_ms']:6.2f}    | "
-              f"{r['failures']:.0f}")
+              f"{r['failures']:4.0f} | {r['rti_fallbacks']:.0f}")
 
 
 def _solver_arg(text: str) -> str:

@@ -72,6 +72,19 @@ class MpcConfig(BaseModel):
     is followed by another (up to ``rti_iterations``)."""
     rti_step_steer_rad: float = Field(0.05, gt=0.0, le=1.0)
     """``sqp_rti``: the same for a planned steer angle."""
+    rti_max_move_accel_mps2: float = Field(3.0, gt=0.0, le=20.0)
+    """``sqp_rti``: a warm step that moves a planned acceleration anywhere in the horizon
+    by more than this is not trusted (the linearisation was far from the problem: dev
+    seed rab 107 mpc swung +3 / -3.5 / +3 m/s^2 and steered into the ring's entry lane);
+    see ``rti_fallback``."""
+    rti_max_move_steer_rad: float = Field(0.3, gt=0.0, le=2.0)
+    """``sqp_rti``: the same for a planned steer angle."""
+    rti_fallback: bool = True
+    """``sqp_rti``: a step the RTI does not deliver (its QP failed or gave non-finite
+    numbers, a cold or reconverge iteration still moving a control by more than
+    ``rti_step_*``, a warm step moving one by more than ``rti_max_move_*``) is solved by
+    FATROP from the same warm start and parameters (the hybrid of docs/lmpc_mpc.md); off:
+    such a step is a failed solve (shifted plan, then the brake)."""
     rti_cold_iterations: int = Field(5, ge=1, le=50)
     """``sqp_rti``: steps from a cold start (first step, after a failure or a reset),
     where the guess is a plain roll-out and one step is not enough."""

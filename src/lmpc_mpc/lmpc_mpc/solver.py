@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Optional, Sequence
 
 import casadi as ca
@@ -206,6 +206,9 @@ class MpcSolver:
         self.dt_s = config.dt_s
         self._compiled: dict[int, _Compiled] = {}
         self._rti: dict[int, RtiQp] = {}
+        self._fallback: Optional[MpcSolver] = None
+        self.rti_fallbacks = 0
+        """``sqp_rti``: steps FATROP solved because the RTI did not deliver them."""
         self._warm: Optional[np.ndarray] = None
         self._warm_slots: Optional[int] = None
         self._reconverge_next = False
@@ -363,6 +366,15 @@ class MpcSolver:
                 self.rti(size)
             else:
                 self.compiled(size)
+        if self.solver_name == "sqp_rti" and self.config.rti_fallback:
+            self._nlp_fallback().warm_up()
+
+    def _nlp_fallback(self) -> "MpcSolver":
+        """The FATROP solver of the same problem that answers a step the RTI does not."""
+        if self._fallback is None:
+            self._fallback = MpcSolver(self.config, self.vehicle, solver="fatrop")
+            self._fallback.enforce_time_budget = self.enforce_time_budget
+        return self._fallback
 
     def rti(self, n_slots: int) -> RtiQp:
         """The RTI QP of ``n_slots`` obstacle slots (built on first use, ~0.1-0.3 s, or its
@@ -671,7 +683,6 @@ class MpcSolver:
     # -- solving -------------------------------------------------------------------------
     def solve(self, problem: MpcProblem) -> MpcResult:
         """Solve one step. Never returns an unconverged or non-finite solution as success."""
-        n = self.n
         if not self._compiled and not self._rti:
             self.warm_up()
         t0 = time.perf_counter()  # compiling is not part of the solve time
@@ -681,7 +692,33 @@ class MpcSolver:
         except MpcInputError as exc:
             return self._fail(f"bad input: {exc}", t0, 0)
         if self.solver_name == "sqp_rti":
-            return self._solve_rti(p, x0, n_slots, t0)
+            warm = (self._warm, self._warm_slots, self._reconverge_next)
+            res = self._solve_rti(p, x0, n_slots, t0)
+            if res.success or not self.config.rti_fallback:
+                return res
+            return self._solve_by_fallback(p, x0, n_slots, t0, warm, res.status)
+        return self._solve_nlp(p, x0, n_slots, t0)
+
+    def _solve_by_fallback(self, p: np.ndarray, x0: np.ndarray, n_slots: int, t0: float,
+                           warm: tuple[Optional[np.ndarray], Optional[int], bool],
+                           why: str) -> MpcResult:
+        """FATROP on the step the RTI did not deliver (``why``), from the warm start the
+        RTI had; its solution (or failure) is this step's, and warm-starts the next RTI
+        step. The solve time counts both attempts."""
+        fb = self._nlp_fallback()
+        fb._warm, fb._warm_slots, _ = warm
+        fb._cpu0 = self._cpu0
+        res = fb._solve_nlp(p, x0, n_slots, t0)
+        self.rti_fallbacks += 1
+        self.over_budget += fb.over_budget  # the fallback's overrun is this solver's
+        fb.over_budget = 0
+        self._warm, self._warm_slots = fb._warm, fb._warm_slots
+        return replace(res, status=f"{res.status} (FATROP after the RTI: {why})"[:190])
+
+    def _solve_nlp(self, p: np.ndarray, x0: np.ndarray, n_slots: int,
+                   t0: float) -> MpcResult:
+        """One solve of the NLP (FATROP or IPOPT) with parameters ``p``."""
+        n = self.n
         comp = self.compiled(n_slots)
         w0 = self._initial_guess(x0, n_slots)
         try:
@@ -749,6 +786,11 @@ class MpcSolver:
                 f"not converged: cold RTI still moving after {step.sqp_steps} steps "
                 f"({step.last_move[0]:.2f} m/s^2, {step.last_move[1]:.3f} rad)",
                 t0, step.sqp_steps, elapsed)
+        if not cold and (step.last_move[0] > cfg.rti_max_move_accel_mps2
+                         or step.last_move[1] > cfg.rti_max_move_steer_rad):
+            return self._fail(
+                f"RTI step too large ({step.last_move[0]:.2f} m/s^2, "
+                f"{step.last_move[1]:.3f} rad)", t0, step.sqp_steps, elapsed)
         xs, us = qp.to_stages(step.z)
         out = np.empty((n + 1, NX + NU))
         out[:, :NX] = xs

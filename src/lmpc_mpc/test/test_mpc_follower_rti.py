@@ -97,8 +97,11 @@ def _lane_problem(x: np.ndarray, u_prev: tuple[float, float], u_prev2: tuple[flo
 def _after_a_jump(rti_iterations: int) -> tuple[MpcProblem, MpcSolver]:
     """The RTI warm on a straight lane at 8 m/s for 10 steps, then the reference jumps
     3.5 m sideways (a new candidate): returns the jumped problem and the warm solver."""
-    mpc = MpcSolver(CFG.model_copy(update={"solver": "sqp_rti",
-                                           "rti_iterations": rti_iterations}))
+    # the RTI alone (no step-size limit, no FATROP fallback): these tests are about its
+    # own steps
+    mpc = MpcSolver(CFG.model_copy(update={
+        "solver": "sqp_rti", "rti_fallback": False, "rti_max_move_accel_mps2": 20.0,
+        "rti_max_move_steer_rad": 2.0, "rti_iterations": rti_iterations}))
     x = np.array([0.0, 0.0, 0.0, 8.0])
     u1 = u2 = (0.0, 0.0)
     for _ in range(10):

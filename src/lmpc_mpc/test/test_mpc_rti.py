@@ -12,7 +12,12 @@ from lmpc_mpc.controller import MpcController
 from lmpc_mpc.solver import MpcProblem, MpcSolver, Obstacle, simulate_bicycle
 
 CFG = load_mpc_config().model_copy(update={"solver": "fatrop"})
-RTI = CFG.model_copy(update={"solver": "sqp_rti"})
+RTI = CFG.model_copy(update={"solver": "sqp_rti", "rti_fallback": False,
+                             "rti_max_move_accel_mps2": 20.0, "rti_max_move_steer_rad": 2.0})
+"""The RTI alone: every step it computes is taken (no step-size limit), a step it cannot
+compute is a failure (no FATROP fallback)."""
+HYBRID = CFG.model_copy(update={"solver": "sqp_rti"})
+"""``sqp_rti`` as configured: FATROP answers a step the RTI does not deliver."""
 
 
 @pytest.fixture(scope="module")
@@ -159,3 +164,55 @@ def test_a_cold_iteration_still_moving_is_a_failure() -> None:
     assert five.solve(prob).success
     warm = five.solve(dataclasses.replace(prob, x0=(0.5, 0.0, 0.0, 9.0)))
     assert warm.success and warm.iterations == 1
+
+
+def test_a_warm_step_that_swings_the_plan_is_not_trusted() -> None:
+    """A warm step moving a planned control by more than ``rti_max_move_*`` (the guess
+    was far from the new problem: a standing car appears close ahead) is not delivered
+    by the RTI alone; the hybrid answers it with FATROP's solution of the same problem
+    and counts it. With the limits opened the RTI takes that step itself."""
+    before, jumped = (_lead_problem(gap_m=60.0, v0=9.0, lead_v=9.0),
+                      _lead_problem(gap_m=12.0, v0=9.0, lead_v=0.0))
+    alone = MpcSolver(RTI.model_copy(update={"rti_max_move_accel_mps2": 3.0,
+                                             "rti_max_move_steer_rad": 0.3}))
+    assert alone.solve(before).success
+    res = alone.solve(jumped)
+    assert not res.success and "RTI step too large" in res.status, res.status
+    hybrid = MpcSolver(HYBRID)
+    assert hybrid.solve(before).success and hybrid.rti_fallbacks == 0
+    got = hybrid.solve(jumped)
+    assert got.success and "FATROP after the RTI: RTI step too large" in got.status
+    assert hybrid.rti_fallbacks == 1
+    ref = MpcSolver(CFG)
+    ref.solve(before)
+    want = ref.solve(jumped)
+    assert got.u0 == pytest.approx(want.u0, abs=1e-9)  # FATROP's answer, same warm start
+    loose = MpcSolver(RTI)
+    loose.solve(before)
+    took = loose.solve(jumped)
+    assert took.success and took.iterations == 1, took.status
+
+
+def test_the_hybrid_answers_a_failed_qp_with_fatrop(monkeypatch: pytest.MonkeyPatch) -> None:
+    """An RTI QP that gives non-finite numbers: the hybrid's step is FATROP's, and the
+    next step is the RTI's again, warm-started from FATROP's solution."""
+    prob = _lead_problem(gap_m=30.0, v0=8.0, lead_v=8.0)
+    hybrid = MpcSolver(HYBRID)
+    assert hybrid.solve(prob).success
+    qp = hybrid.rti(hybrid._warm_slots)
+    real = qp._qp
+
+    class NanQp:
+        def __call__(self, **kw):
+            out = real(**kw)
+            return {**out, "x": out["x"] * np.nan}
+
+        def stats(self):
+            return real.stats()
+
+    monkeypatch.setattr(qp, "_qp", NanQp())
+    res = hybrid.solve(prob)
+    assert res.success and "non-finite" in res.status and hybrid.rti_fallbacks == 1
+    monkeypatch.setattr(qp, "_qp", real)
+    nxt = hybrid.solve(prob)
+    assert nxt.success and nxt.status.startswith("RTI_Step_Succeeded (1 step")
