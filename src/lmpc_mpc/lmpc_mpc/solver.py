@@ -34,7 +34,10 @@ controls ride in the state, so FATROP's manual structure (nx 8, nu 2) holds exac
 (:mod:`lmpc_mpc.rti`: Gauss-Newton QPs with HPIPM, warm-started from the shifted
 previous solution: one step per control step, more (up to ``rti_iterations``) while a
 step still moves a planned control by more than ``rti_step_*``); the parameters, the
-obstacle packing and the fallbacks are shared.
+obstacle packing and the fallbacks are shared. A step the RTI does not deliver (its QP
+failed, a cold iteration still moving, a warm step moving a planned control by more than
+``rti_max_move_*``) is solved by FATROP from the same warm start (``rti_fallback``, on by
+default: the hybrid of docs/lmpc_mpc.md).
 """
 from __future__ import annotations
 
@@ -780,14 +783,17 @@ class MpcSolver:
             # a cold / reconverge iteration still moving a planned control by more than a
             # warm step may: no solution yet (si seed 24 lmpc-rules: such a plan read -1.6
             # then +3 m/s^2 and the ego entered a left turn too fast where FATROP, failing
-            # on the same problem, braked); treated as FATROP's failure is (shifted plan,
-            # then the brake)
+            # on the same problem, braked): not delivered (FATROP answers it with
+            # rti_fallback, else the shifted plan, then the brake)
             return self._fail(
                 f"not converged: cold RTI still moving after {step.sqp_steps} steps "
                 f"({step.last_move[0]:.2f} m/s^2, {step.last_move[1]:.3f} rad)",
                 t0, step.sqp_steps, elapsed)
         if not cold and (step.last_move[0] > cfg.rti_max_move_accel_mps2
                          or step.last_move[1] > cfg.rti_max_move_steer_rad):
+            # a full step that swings the plan: the linearisation was far from the problem
+            # (dev rab 107 mpc: +3 / -3.5 / +3 m/s^2 and a steer into the ring's entry
+            # lane); not delivered either
             return self._fail(
                 f"RTI step too large ({step.last_move[0]:.2f} m/s^2, "
                 f"{step.last_move[1]:.3f} rad)", t0, step.sqp_steps, elapsed)
