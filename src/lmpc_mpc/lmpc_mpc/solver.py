@@ -695,7 +695,7 @@ class MpcSolver:
         except MpcInputError as exc:
             return self._fail(f"bad input: {exc}", t0, 0)
         if self.solver_name == "sqp_rti":
-            warm = (self._warm, self._warm_slots, self._reconverge_next)
+            warm = (self._warm, self._warm_slots)  # the RTI step replaces them
             res = self._solve_rti(p, x0, n_slots, t0)
             if res.success or not self.config.rti_fallback:
                 return res
@@ -703,13 +703,13 @@ class MpcSolver:
         return self._solve_nlp(p, x0, n_slots, t0)
 
     def _solve_by_fallback(self, p: np.ndarray, x0: np.ndarray, n_slots: int, t0: float,
-                           warm: tuple[Optional[np.ndarray], Optional[int], bool],
+                           warm: tuple[Optional[np.ndarray], Optional[int]],
                            why: str) -> MpcResult:
         """FATROP on the step the RTI did not deliver (``why``), from the warm start the
         RTI had; its solution (or failure) is this step's, and warm-starts the next RTI
         step. The solve time counts both attempts."""
         fb = self._nlp_fallback()
-        fb._warm, fb._warm_slots, _ = warm
+        fb._warm, fb._warm_slots = warm
         fb._cpu0 = self._cpu0
         res = fb._solve_nlp(p, x0, n_slots, t0)
         self.rti_fallbacks += 1

@@ -1,6 +1,7 @@
 """SQP real-time iteration (``solver: sqp_rti``): agreement with the NLP, failures, config."""
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -93,14 +94,9 @@ def test_infeasible_start_is_a_failure(rti: MpcSolver) -> None:
     assert np.all(np.isfinite(res.predicted)) and all(math.isfinite(u) for u in res.u0)
 
 
-def test_non_finite_qp_answer_is_a_failure_and_clears_the_warm_start(
-        rti: MpcSolver, monkeypatch: pytest.MonkeyPatch) -> None:
-    prob = _lead_problem(gap_m=30.0, v0=8.0, lead_v=8.0)
-    rti.reset()
-    assert rti.solve(prob).success
-    n_slots = rti._warm_slots
-    assert n_slots is not None
-    qp = rti.rti(n_slots)
+def _nan_answers(qp: Any, monkeypatch: pytest.MonkeyPatch) -> Any:
+    """Make ``qp``'s HPIPM solver answer with non-finite numbers; returns the real one
+    (set it back with ``monkeypatch.setattr(qp, "_qp", real)``)."""
     real = qp._qp
 
     class NanQp:
@@ -112,6 +108,18 @@ def test_non_finite_qp_answer_is_a_failure_and_clears_the_warm_start(
             return real.stats()
 
     monkeypatch.setattr(qp, "_qp", NanQp())
+    return real
+
+
+def test_non_finite_qp_answer_is_a_failure_and_clears_the_warm_start(
+        rti: MpcSolver, monkeypatch: pytest.MonkeyPatch) -> None:
+    prob = _lead_problem(gap_m=30.0, v0=8.0, lead_v=8.0)
+    rti.reset()
+    assert rti.solve(prob).success
+    n_slots = rti._warm_slots
+    assert n_slots is not None
+    qp = rti.rti(n_slots)
+    real = _nan_answers(qp, monkeypatch)
     res = rti.solve(prob)
     assert not res.success and "non-finite" in res.status
     assert rti._warm is None
@@ -200,17 +208,7 @@ def test_the_hybrid_answers_a_failed_qp_with_fatrop(monkeypatch: pytest.MonkeyPa
     hybrid = MpcSolver(HYBRID)
     assert hybrid.solve(prob).success
     qp = hybrid.rti(hybrid._warm_slots)
-    real = qp._qp
-
-    class NanQp:
-        def __call__(self, **kw):
-            out = real(**kw)
-            return {**out, "x": out["x"] * np.nan}
-
-        def stats(self):
-            return real.stats()
-
-    monkeypatch.setattr(qp, "_qp", NanQp())
+    real = _nan_answers(qp, monkeypatch)
     res = hybrid.solve(prob)
     assert res.success and "non-finite" in res.status and hybrid.rti_fallbacks == 1
     monkeypatch.setattr(qp, "_qp", real)
