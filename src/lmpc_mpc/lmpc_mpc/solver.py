@@ -400,7 +400,10 @@ class MpcSolver:
 
     def compiled(self, n_slots: int) -> _Compiled:
         """The problem of ``n_slots`` obstacle slots (built on first use, ~0.1-1 s, or
-        loaded from the on-disk cache, ~0.05 s: :mod:`lmpc_mpc.solver_cache`)."""
+        loaded from the on-disk cache, ~0.05 s: :mod:`lmpc_mpc.solver_cache`). The
+        hybrid ``sqp_rti``'s NLP is that of its FATROP fallback."""
+        if self.solver_name == "sqp_rti":
+            return self._nlp_fallback().compiled(n_slots)
         if n_slots not in self._compiled:
             self._compiled[n_slots] = self._load_or_build(n_slots)
         return self._compiled[n_slots]
