@@ -55,13 +55,13 @@ class MpcConfig(BaseModel):
     """Number of control steps N in the horizon."""
     dt_s: float = Field(0.1, gt=0.0, le=1.0)
     """Step length of the model and the control loop [s]."""
-    solver: Literal["fatrop", "ipopt", "sqp_rti"] = "sqp_rti"
-    """``sqp_rti`` (default): real-time iteration, one Gauss-Newton QP per step from the
-    shifted previous solution (``lmpc_mpc.rti``), with FATROP answering every step the
-    RTI does not deliver (``rti_fallback``; docs/lmpc_mpc.md, "The hybrid");
-    ``fatrop`` / ``ipopt``: the NLP solved to tolerance by FATROP (stage-wise) or IPOPT
-    (general, slower). The environment variable ``LMPC_MPC_SOLVER`` overrides the file
-    (see :func:`load_mpc_config`)."""
+    solver: Literal["fatrop", "ipopt", "sqp_rti"] = "fatrop"
+    """``fatrop`` (default) / ``ipopt``: the NLP solved to tolerance by FATROP (stage-wise)
+    or IPOPT (general, slower); ``sqp_rti``: real-time iteration, one Gauss-Newton QP per
+    step from the shifted previous solution (``lmpc_mpc.rti``), with FATROP answering
+    every step the RTI does not deliver (``rti_fallback``; docs/lmpc_mpc.md, "The
+    hybrid"). The environment variable ``LMPC_MPC_SOLVER`` overrides the file (see
+    :func:`load_mpc_config`)."""
     rti_iterations: int = Field(1, ge=1, le=50)
     """``sqp_rti``: at most this many Gauss-Newton SQP steps per control step from a warm
     start. The first step is always taken; another only while the last one moved a

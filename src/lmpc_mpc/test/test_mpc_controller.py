@@ -450,9 +450,8 @@ def test_a_go_is_refused_while_a_car_ahead_holds_the_reference(solver: MpcSolver
     behind a car that has stopped in the ego's lane meanwhile. The reference is held
     behind the car; a go bias against it made the MPC steer round the car (off the road).
     The check refuses the go while the car holds the reference: ``Control.stale`` names
-    it, the ego stops behind it in its lane. Check off: the go makes the MPC steer round
-    the car, out of its lane (FATROP also pushes the ego on harder first; the hybrid RTI
-    brakes as hard and swerves)."""
+    it, the ego stops behind it in its lane. Check off: the go pushes the ego on harder
+    and it leaves its lane to pass."""
     m = S.straight_road()
     start = (10.0, -4.8, 0.0, 8.0)
     go = _decision(start[:2], stamp_s=0.0, latency_s=2.5, ttl_s=30.0,
@@ -479,9 +478,10 @@ def test_a_go_is_refused_while_a_car_ahead_holds_the_reference(solver: MpcSolver
     end = log[-1][1]
     assert end[3] < 0.5 and 0.5 < 70.0 - end[0] - 4.5 < 8.0  # stopped behind the car
     assert all(abs(x[1] + 4.8) < 0.6 for _, x, _ in log)  # in its lane throughout
-    blind, blind_ctrl = drive(False)
-    assert blind_ctrl.stats().go_refused == 0 and all(not c.stale for _, _, c in blind)
-    assert max(abs(x[1] + 4.8) for _, x, _ in blind) > 0.6  # out of its lane
+    blind, _ = drive(False)
+    assert max(abs(x[1] + 4.8) for _, x, _ in blind) > 0.6 and \
+        max(c.accel_mps2 for t, _, c in blind if t >= 2.5) > \
+        max(c.accel_mps2 for t, _, c in log if t >= 2.5) + 0.3
 
 
 def test_standing_agent_beside_the_path_gets_no_headway(solver: MpcSolver) -> None:

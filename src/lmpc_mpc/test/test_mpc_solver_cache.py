@@ -94,3 +94,12 @@ def test_a_loaded_rti_drives_exactly_like_a_built_one(
 
     monkeypatch.setattr("lmpc_mpc.rti.RtiQp._build", no_build)
     assert np.array_equal(built, run())
+
+
+def test_a_hybrid_solvers_nlp_is_its_fatrop_fallbacks(cache: Path) -> None:
+    """``compiled()`` of the hybrid ``sqp_rti`` (there is no "sqp_rti" NLP plugin) is the
+    NLP of the FATROP solver that answers the steps its RTI does not deliver."""
+    hybrid = MpcSolver(CFG, solver="sqp_rti")
+    comp = hybrid.compiled(5)
+    assert comp is hybrid._nlp_fallback().compiled(5)
+    assert comp.solver.name() == "mpc" and hybrid._nlp_fallback().solver_name == "fatrop"
