@@ -9,7 +9,8 @@ from rules_kit import car, road_obs
 from rules_units import accel_of, fresh_plan, inputs
 
 from lmpc_llm_planner.backends.rules.headway import (
-    HEADWAY_OPEN_FRACTION, HEADWAY_S, headway_rule, wanted_gap_m,
+    CONSERVATIVE_HEADWAY_S, CONSERVATIVE_OPEN_ROAD_HEADWAY_S, HEADWAY_OPEN_FRACTION, HEADWAY_S,
+    headway_rule, style_headway_s, wanted_gap_m,
 )
 
 
@@ -59,3 +60,25 @@ def test_slow_ego_standing_leader_or_a_lane_change_are_left_alone(
                                         if c.label == "change to the left lane"))
     headway_rule(inp, changing)
     assert not changing.speed_set and not changing.notes
+
+
+def test_conservative_keeps_four_seconds_on_the_open_road_three_before_a_junction(
+        road, straight_map, obs_factory, planner_config, mpc_config):
+    """Issue 20: the conservative gap is 4 s where no junction is on the route within
+    ``OPEN_ROAD_M`` (lane's long road), 3 s before one (a longer gap there changes which
+    gap in the cross traffic the ego meets); other styles keep 2 s everywhere."""
+    cons = "drive conservatively"
+    open_road = inputs(road_obs(road, []), planner_config, mpc_config, instruction=cons)
+    assert style_headway_s(open_road) == CONSERVATIVE_OPEN_ROAD_HEADWAY_S == 4.0
+    near = inputs(obs_factory(straight_map), planner_config, mpc_config, instruction=cons)
+    assert style_headway_s(near) == CONSERVATIVE_HEADWAY_S == 3.0
+    for instruction in (None, "drive aggressively"):
+        for obs in (road_obs(road, []), obs_factory(straight_map)):
+            inp = inputs(obs, planner_config, mpc_config, instruction=instruction)
+            assert style_headway_s(inp) == HEADWAY_S
+    # at 12 m/s behind a 12 m/s leader 40 m ahead (3.3 s): on the open road the
+    # conservative ego drops back, with no instruction it is left alone
+    _, plan = _at_gap(road, planner_config, mpc_config, 40.0, instruction=cons)
+    assert plan.speed_set and "drop back" in plan.notes[0]
+    inp, plan = _at_gap(road, planner_config, mpc_config, 40.0)
+    assert plan == fresh_plan(inp)

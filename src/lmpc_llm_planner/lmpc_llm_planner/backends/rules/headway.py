@@ -7,6 +7,8 @@ braking interval) until the gap has opened, and hold the speed while it is only 
 short."""
 from __future__ import annotations
 
+from lmpc_llm_planner.route import next_maneuver
+
 from .intervals import brake_index, neutral
 from .plan import Plan, RuleInputs, changing_lanes
 from .scene_helpers import STANDOFF_M, lane_leader
@@ -29,6 +31,22 @@ HEADWAY_MIN_SPEED_MPS = 4.0
 
 CONSERVATIVE_HEADWAY_S = 3.0
 """The time gap of the conservative style (the braking model's gap still applies)."""
+CONSERVATIVE_OPEN_ROAD_HEADWAY_S = 4.0
+"""The conservative time gap on the open road: no junction on the route within
+``OPEN_ROAD_M`` (a longer gap there only costs time; before a junction it changes which
+gap in the cross traffic the ego meets, and a 4 s gap everywhere deadlocked dev si 121)."""
+OPEN_ROAD_M = 150.0
+"""No junction connection on the route within this distance: the open road."""
+
+
+def style_headway_s(inp: RuleInputs) -> float:
+    """The time gap the rules keep behind a leader for the instructed style."""
+    if inp.intent.style != "conservative":
+        return HEADWAY_S
+    scene = inp.scene
+    if next_maneuver(scene.obs, scene.lanes, max_distance_m=OPEN_ROAD_M) is None:
+        return CONSERVATIVE_OPEN_ROAD_HEADWAY_S
+    return CONSERVATIVE_HEADWAY_S
 
 
 def wanted_gap_m(v_mps: float, leader_v_mps: float, headway_s: float = HEADWAY_S) -> float:
@@ -50,8 +68,7 @@ def headway_rule(inp: RuleInputs, plan: Plan) -> None:
     if leader is None or leader.agent.v_mps < inp.cfg.moving_speed_mps:
         return  # standing: the stand-off rules (path, go) handle it
     vl = leader.agent.v_mps
-    want = wanted_gap_m(v, vl, CONSERVATIVE_HEADWAY_S if inp.intent.style == "conservative"
-                        else HEADWAY_S)
+    want = wanted_gap_m(v, vl, style_headway_s(inp))
     gap = leader.kin.gap_m
     if gap >= want:
         return
