@@ -42,6 +42,9 @@ class RulesConfig(_Frozen):
     time already includes accelerating through the turn)."""
     conservative_gap_factor: float = Field(default=1.5, ge=1.0, le=5.0)
     """Multiplies ``safe_gap_s`` when the user asks for conservative / careful driving."""
+    aggressive_gap_factor: float = Field(default=0.75, gt=0.0, le=1.0)
+    """Multiplies ``safe_gap_s`` when the user asks for aggressive driving (a shorter, still
+    positive post-encroachment margin; the MPC's own yield rule and safety term stay)."""
     turn_accel_mps2: float = Field(default=2.0, gt=0.0, le=5.0)
     """Acceleration the ego is assumed to use from its current speed when it goes."""
     turn_speed_mps: float = Field(default=5.0, gt=0.0, le=20.0)

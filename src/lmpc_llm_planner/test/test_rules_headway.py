@@ -9,9 +9,10 @@ from rules_kit import car, road_obs
 from rules_units import accel_of, fresh_plan, inputs
 
 from lmpc_llm_planner.backends.rules.headway import (
-    CONSERVATIVE_HEADWAY_S, CONSERVATIVE_OPEN_ROAD_HEADWAY_S, HEADWAY_OPEN_FRACTION, HEADWAY_S,
-    headway_rule, style_headway_s, wanted_gap_m,
+    AGGRESSIVE_STANDOFF_M, CONSERVATIVE_HEADWAY_S, CONSERVATIVE_OPEN_ROAD_HEADWAY_S,
+    HEADWAY_OPEN_FRACTION, HEADWAY_S, headway_rule, style_headway_s, wanted_gap_m,
 )
+from lmpc_llm_planner.backends.rules.scene_helpers import STANDOFF_M
 
 
 @pytest.mark.parametrize("v, vl", [(5.0, 5.0), (12.0, 12.0), (20.0, 20.0), (12.0, 6.0)])
@@ -81,4 +82,27 @@ def test_conservative_keeps_four_seconds_on_the_open_road_three_before_a_junctio
     _, plan = _at_gap(road, planner_config, mpc_config, 40.0, instruction=cons)
     assert plan.speed_set and "drop back" in plan.notes[0]
     inp, plan = _at_gap(road, planner_config, mpc_config, 40.0)
+    assert plan == fresh_plan(inp)
+
+
+def test_aggressive_follows_a_platoon_closer_but_still_stops_short(
+        road, planner_config, mpc_config):
+    """Issue 20: behind a 7 m/s leader normal and aggressive kept the same 19 m (the braking
+    model's gap, with its 10 m to steer round); the aggressive margin is 5 m: still a stop
+    short of a leader braking at 8 m/s^2 after the 1 s reaction."""
+    normal = wanted_gap_m(7.0, 7.0)
+    aggressive = wanted_gap_m(7.0, 7.0, standoff_m=AGGRESSIVE_STANDOFF_M)
+    assert normal == pytest.approx(7.0 + 4.9 - 3.0625 + STANDOFF_M)
+    # the 2 s time gap (14 m) binds before the braking model's 13.8 m
+    assert aggressive == pytest.approx(max(HEADWAY_S * 7.0,
+                                           normal - (STANDOFF_M - AGGRESSIVE_STANDOFF_M)))
+    assert aggressive < normal - 4.0
+    # stopping distance after the reaction minus the leader's: at least the margin is left
+    stop_ego = 7.0 * 1.0 + 7.0 ** 2 / (2 * 5.0)
+    assert aggressive - (stop_ego - 7.0 ** 2 / (2 * 8.0)) >= AGGRESSIVE_STANDOFF_M
+    # 16 m behind: the normal ego drops back, the aggressive one only holds its speed
+    inp, plan = _at_gap(road, planner_config, mpc_config, 16.0, v=7.0, vl=7.0)
+    assert accel_of(inp, plan) < 0.0 and "drop back" in plan.notes[0]
+    inp, plan = _at_gap(road, planner_config, mpc_config, 16.0, v=7.0, vl=7.0,
+                        instruction="drive aggressively")
     assert plan == fresh_plan(inp)

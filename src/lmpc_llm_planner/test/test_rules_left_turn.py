@@ -195,3 +195,27 @@ def test_a_committed_conservative_ego_still_clears_briskly(
     p_n, p_c = fresh_plan(normal), fresh_plan(careful)
     assert left_turn_rule(careful, p_c) == left_turn_rule(normal, p_n) == "commit"
     assert accel_of(careful, p_c) == accel_of(normal, p_n) > 0.0
+
+
+def test_aggressive_takes_a_gap_normal_refuses(left_turn_map, obs_factory, oncoming_factory,
+                                               planner_config, mpc_config):
+    """Issue 20: the aggressive style's turn gap is ``safe_gap_s`` x
+    ``aggressive_gap_factor`` (1.5 -> 1.125 s): an oncoming car whose gap beyond the
+    ego's clear time lies between the two is yielded to with no instruction and taken
+    when aggressive (same clear time: both go with the go interval)."""
+    rules = planner_config.rules
+    lo, hi = rules.safe_gap_s * rules.aggressive_gap_factor, rules.safe_gap_s
+    found = 0
+    for tenths in range(60, 100):  # slower and slower oncoming cars 55 m up the road
+        agents = [oncoming_factory("car1", y_m=55.0, v_mps=tenths / 10.0)]
+        obs = obs_factory(left_turn_map, ego_y_m=-20.0, ego_v_mps=5.0, agents=agents)
+        normal = _inputs(obs, planner_config, mpc_config)
+        aggressive = _inputs(obs, planner_config, mpc_config, instruction="drive aggressively")
+        assert aggressive.safe_gap_s == pytest.approx(lo)
+        gap = _conflict(normal, "car1").gap_s
+        assert _conflict(aggressive, "car1").gap_s == pytest.approx(gap)
+        if lo + 0.05 < gap < hi - 0.05:
+            found += 1
+            assert left_turn_rule(normal, fresh_plan(normal)) == "yield"
+            assert left_turn_rule(aggressive, fresh_plan(aggressive)) == "go"
+    assert found >= 2  # the positions swept do cover the band between the two gaps

@@ -61,13 +61,14 @@ def rule_inputs(cfg: RulesConfig, request: DecisionRequest) -> RuleInputs:
     they accept and whether the previous decision went or braked."""
     accel = request.accel_intervals_mps2
     intent = parse_instruction(request.instruction)
-    careful = intent.style == "conservative"
+    gap_factor = {"conservative": cfg.conservative_gap_factor,
+                  "aggressive": cfg.aggressive_gap_factor}.get(intent.style, 1.0)
     lo_neutral = accel[neutral(accel)][0]
     prev = request.previous
     return RuleInputs(
         cfg=cfg, scene=request.scene, accel=accel, steer=request.steer_intervals_rad,
         intent=intent,
-        safe_gap_s=cfg.safe_gap_s * (cfg.conservative_gap_factor if careful else 1.0),
+        safe_gap_s=cfg.safe_gap_s * gap_factor,
         previous_go=prev is not None and prev.accel_bias_mps2 >= 0.0,
         previous_stop=prev is not None and prev.accel_bias_mps2 < lo_neutral,
         emergency=request.mode == "emergency",

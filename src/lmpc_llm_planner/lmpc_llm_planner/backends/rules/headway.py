@@ -37,6 +37,11 @@ CONSERVATIVE_OPEN_ROAD_HEADWAY_S = 4.0
 gap in the cross traffic the ego meets, and a 4 s gap everywhere deadlocked dev si 121)."""
 OPEN_ROAD_M = 150.0
 """No junction connection on the route within this distance: the open road."""
+AGGRESSIVE_STANDOFF_M = 5.0
+"""The aggressive style's margin in the braking model's gap: it still stops this far
+short of a leader braking as hard as a car can, but not far enough to steer round it
+(issue 20: behind a platoon-speed leader normal and aggressive kept the same 19 m, and
+the aggressive driver was no faster)."""
 
 
 def style_headway_s(inp: RuleInputs) -> float:
@@ -49,11 +54,17 @@ def style_headway_s(inp: RuleInputs) -> float:
     return CONSERVATIVE_HEADWAY_S
 
 
-def wanted_gap_m(v_mps: float, leader_v_mps: float, headway_s: float = HEADWAY_S) -> float:
+def style_standoff_m(inp: RuleInputs) -> float:
+    """The margin of the braking model's gap for the instructed style."""
+    return AGGRESSIVE_STANDOFF_M if inp.intent.style == "aggressive" else STANDOFF_M
+
+
+def wanted_gap_m(v_mps: float, leader_v_mps: float, headway_s: float = HEADWAY_S,
+                 standoff_m: float = STANDOFF_M) -> float:
     """The gap the ego keeps at ``v_mps`` behind a leader driving ``leader_v_mps``."""
     v, vl = v_mps, leader_v_mps
     return max(headway_s * v, v * HEADWAY_REACTION_S + v * v / (2.0 * EGO_BRAKE_MPS2)
-               - vl * vl / (2.0 * LEADER_BRAKE_MPS2) + STANDOFF_M)
+               - vl * vl / (2.0 * LEADER_BRAKE_MPS2) + standoff_m)
 
 
 def headway_rule(inp: RuleInputs, plan: Plan) -> None:
@@ -68,7 +79,7 @@ def headway_rule(inp: RuleInputs, plan: Plan) -> None:
     if leader is None or leader.agent.v_mps < inp.cfg.moving_speed_mps:
         return  # standing: the stand-off rules (path, go) handle it
     vl = leader.agent.v_mps
-    want = wanted_gap_m(v, vl, style_headway_s(inp))
+    want = wanted_gap_m(v, vl, style_headway_s(inp), style_standoff_m(inp))
     gap = leader.kin.gap_m
     if gap >= want:
         return
