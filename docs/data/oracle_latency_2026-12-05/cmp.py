@@ -1,9 +1,10 @@
 """Collisions + fails and mean O.C. per family of the oracle's rows at a decision latency
 against mpc, lmpc-rules at 0 s and at that latency and the oracle at 0 s, on the seeds
 every oracle-latency file covers (seeds 0-9; the other rows from the folders named
-below, relative to this one). Each argument is LATENCY=FILE (a bare FILE is 2.5 s).
+below, relative to this one). Each argument is LATENCY=FILE (a bare FILE is 2.5 s), or
+perP=FILE for the oracle at planning period P (against the rules' ``per5`` / ``per1`` rows).
 
-    python3 cmp.py 2.5=p2.5/results.csv 1.5=p1.5/results.csv
+    python3 cmp.py 2.5=p2.5/results.csv 1.5=p1.5/results.csv per5=per5.0/results.csv
 """
 import csv
 import sys
@@ -35,8 +36,9 @@ def main() -> None:
     columns = {
         "mpc": load([t1], "mpc"),
         "rules 0": load([t1], "lmpc-rules"),
-        **{f"rules {lat}": load([DATA / "latency_2026-12-04" / f"p{lat}" / "results.csv"],
-                                "lmpc-rules") for lat, _ in runs},
+        **{f"rules {lat}": load([DATA / "latency_2026-12-04"
+                                 / (lat if lat.startswith("per") else f"p{lat}")
+                                 / "results.csv"], "lmpc-rules") for lat, _ in runs},
         "oracle 0": load(sorted((DATA / "oracle_c16_test_2026-12-04").glob("results_*.csv")),
                          "lmpc-oracle"),
         **{f"oracle {lat}": load([path], "lmpc-oracle") for lat, path in runs},
