@@ -100,7 +100,7 @@ def test_aggressive_follows_a_platoon_closer_but_still_stops_short(
     # stopping distance after the reaction minus the leader's: at least the margin is left
     stop_ego = 7.0 * 1.0 + 7.0 ** 2 / (2 * 5.0)
     assert aggressive - (stop_ego - 7.0 ** 2 / (2 * 8.0)) >= AGGRESSIVE_STANDOFF_M
-    # 16 m behind: the normal ego drops back, the aggressive one only holds its speed
+    # 16 m behind: the normal ego drops back, the aggressive one is left alone (14 m wanted)
     inp, plan = _at_gap(road, planner_config, mpc_config, 16.0, v=7.0, vl=7.0)
     assert accel_of(inp, plan) < 0.0 and "drop back" in plan.notes[0]
     inp, plan = _at_gap(road, planner_config, mpc_config, 16.0, v=7.0, vl=7.0,
