@@ -1,7 +1,8 @@
 """The headway rule: behind a moving leader in the ego's lane keep a gap from which the ego
 can still brake (or steer round it) if the leader brakes as hard as a car can
 (``LEADER_BRAKE_MPS2``): the ego's stopping distance after a reaction time, minus the
-leader's, plus ``STANDOFF_M`` to steer round it; at least ``HEADWAY_S`` of time gap. The
+leader's, plus ``STANDOFF_M`` to steer round it (aggressive: ``AGGRESSIVE_STANDOFF_M``, a
+stop short of it only); at least the style's time gap (``style_headway_s``). The
 MPC follows at its own (1 s) headway; too close, the rules brake gently (the mildest
 braking interval) until the gap has opened, and hold the speed while it is only a little
 short."""
