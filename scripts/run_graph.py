@@ -468,7 +468,8 @@ def run(args: argparse.Namespace, stops: Optional[StopSignals] = None) -> dict[s
             return scene_failure(run_dir, args, f"stopped by {_signal_names(stops)} while "
                                  "building the scene (no node was started)")
         args.scenario, args.seed = scene.family, scene.seed
-    mismatch = decision_space_mismatch(args) or graph_multi.check_args(args, run_dir / "scene")
+    mismatch = unknown_family(args) or decision_space_mismatch(args) or \
+        graph_multi.check_args(args, run_dir / "scene")
     if mismatch is not None:
         stops.stopping = True
         return scene_failure(run_dir, args, mismatch)
@@ -584,6 +585,18 @@ def _start_recorder(graph: Graph, run_dir: Path, params: dict[str, dict[str, obj
         sys.executable, str(SCRIPTS / "record.py"), "--out", str(bag),
         "--expect", ",".join(topics.topic(t) for t in produced)])
     _wait_for_log(recorder, "recording to", timeout_s=30.0)
+
+
+def unknown_family(args: argparse.Namespace) -> Optional[str]:
+    """Why ``--scenario`` names no registered family (None: it does, or ``--scene``)."""
+    if args.scene is not None:
+        return None
+    from lmpc_bridge.scenarios import families
+
+    if args.scenario in families():
+        return None
+    return (f"unknown scenario family {args.scenario!r}; known: {', '.join(families())} "
+            "(or --scene FILE for your own network); no node started")
 
 
 def scene_failure(run_dir: Path, args: argparse.Namespace, detail: str) -> dict[str, object]:

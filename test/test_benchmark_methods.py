@@ -1,8 +1,10 @@
 """The method registry (``scripts/methods.py``) and ``benchmark.py --list-methods``."""
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from graphkit import REPO
@@ -25,6 +27,26 @@ def test_the_registry_names_an_unknown_method_and_a_replay_without_its_log() -> 
         methods.build(SceneSpec("lmpc-nope", "usi", 0))
     with pytest.raises(ValueError, match="--replay-from"):
         methods.build(SceneSpec("lmpc-replay", "usi", 0))
+
+
+def test_a_misspelt_family_is_refused_before_any_scene_runs(
+    tmp_path: Path, domain_id: int
+) -> None:
+    """benchmark.py and run_graph.py name the unknown family and the known ones, and
+    neither runs anything (the benchmark wrote a results folder of error rows before)."""
+    out = subprocess.run([sys.executable, str(REPO / "scripts" / "benchmark.py"),
+                          "--families", "usi,usii", "--seeds", "0", "--out",
+                          str(tmp_path / "bench")], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "unknown family ['usii']" in out.stderr
+    assert "usi-multi" in out.stderr and not (tmp_path / "bench").exists()
+    graph = subprocess.run([sys.executable, str(REPO / "scripts" / "run_graph.py"),
+                            "--scenario", "usii", "--run-dir", str(tmp_path / "run"),
+                            "--quiet", "--domain-id", str(domain_id)],
+                           capture_output=True, text=True, timeout=60)
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert graph.returncode == 3 and summary["outcome"] == "error"
+    assert "unknown scenario family 'usii'" in summary["detail"]
+    assert summary["nodes"] == {} and not list((tmp_path / "run").glob("*.log"))
 
 
 def test_a_factory_named_module_function_is_imported_when_the_method_runs() -> None:
