@@ -285,7 +285,7 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--scenario", default="usi", help="scenario family (default usi)")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=seed_arg, default=0, help="the scene's seed (>= 0)")
     ap.add_argument("--scene", type=Path,
                     help="scene description (YAML) on your own SUMO network, instead of "
                          "--scenario/--seed (README 'Your own network')")
@@ -585,6 +585,17 @@ def _start_recorder(graph: Graph, run_dir: Path, params: dict[str, dict[str, obj
         sys.executable, str(SCRIPTS / "record.py"), "--out", str(bag),
         "--expect", ",".join(topics.topic(t) for t in produced)])
     _wait_for_log(recorder, "recording to", timeout_s=30.0)
+
+
+def seed_arg(text: str) -> int:
+    """``--seed``: a scene seed, an integer >= 0."""
+    try:
+        seed = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if seed < 0:
+        raise argparse.ArgumentTypeError(f"{seed} is negative (seeds are >= 0)")
+    return seed
 
 
 def unknown_family(args: argparse.Namespace) -> Optional[str]:

@@ -47,6 +47,12 @@ def test_a_misspelt_family_is_refused_before_any_scene_runs(
     assert graph.returncode == 3 and summary["outcome"] == "error"
     assert "unknown scenario family 'usii'" in summary["detail"]
     assert summary["nodes"] == {} and not list((tmp_path / "run").glob("*.log"))
+    # a seed that is no number, or a negative one, is refused by the argument parser
+    for script, flag, value, said in (("benchmark.py", "--seeds", "0,x-3", "'x-3' in '0,x-3'"),
+                                      ("run_graph.py", "--seed", "-1", "-1 is negative")):
+        bad = subprocess.run([sys.executable, str(REPO / "scripts" / script), flag, value],
+                             capture_output=True, text=True, timeout=60)
+        assert bad.returncode == 2 and said in bad.stderr, (script, bad.stderr)
 
 
 def test_a_factory_named_module_function_is_imported_when_the_method_runs() -> None:

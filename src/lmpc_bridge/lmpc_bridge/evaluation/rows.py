@@ -38,7 +38,11 @@ def parse_seeds(text: str) -> list[int]:
         if not part:
             continue
         lo, _, hi = part.partition("-")
-        seeds.update(range(int(lo), int(hi or lo) + 1))
+        try:
+            seeds.update(range(int(lo), int(hi or lo) + 1))
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{part!r} in {text!r} is not a seed or a range like 0-24") from None
     if not seeds:
         raise argparse.ArgumentTypeError(f"no seeds in {text!r}")
     return sorted(seeds)
