@@ -176,6 +176,14 @@ def test_cli_refuses_an_unknown_method(tmp_path: Path) -> None:
         render_cli.run_in_process("usi", 0, "lmpc-openai", work_dir=tmp_path)
 
 
+def test_cli_names_an_unknown_family_without_a_traceback(tmp_path: Path, capsys) -> None:
+    assert render_cli.main(["run", "--family", "usii", "--seed", "0", "--method", "mpc",
+                            "--work-dir", str(tmp_path), "--out", str(tmp_path / "a.png")]) == 2
+    err = capsys.readouterr().err
+    assert "render.py: cannot build scene usii/0: unknown scenario family 'usii'" in err
+    assert not (tmp_path / "a.png").exists()
+
+
 def test_the_bridge_stays_free_of_plotting_planner_and_mpc() -> None:
     """``import lmpc_bridge`` loads no matplotlib; the pictures load neither the planner
     nor the MPC (they come in through ``build``)."""

@@ -191,6 +191,7 @@ def run_in_process(family: str, seed: int, method: str, *, build: Build, work_di
     """
     from lmpc_bridge.evaluation.scenes import SceneSpec
     from lmpc_bridge.runner import RecordingPlanner, run_episode
+    from lmpc_bridge.scenarios import SceneError
     from lmpc_bridge.sim import SumoSim
 
     wiring = build(SceneSpec(method, family, seed, instruction=instruction))
@@ -202,6 +203,8 @@ def run_in_process(family: str, seed: int, method: str, *, build: Build, work_di
         result = run_episode(sim, family=family, seed=seed, controller=wiring.controller,
                              planner=recorder, max_time_s=float(max_time_s))
         snapshot, scene = sim.map, sim.scene
+    except SceneError as exc:
+        raise RenderError(f"cannot build scene {family}/{seed}: {exc}") from exc
     finally:
         sim.close()
     decisions = {}
