@@ -347,10 +347,10 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     timing_error = timing_arg_error(args)
     if timing_error:
         ap.error(timing_error)
-    if args.planning_period is not None and args.planner_config is not None:
+    if args.planner_config is not None:
         from lmpc_llm_planner.config import PlannerConfigError, load_planner_config
 
-        try:  # the cadence config is written from it before the nodes start
+        try:  # a bad file is named here, not by a planner node dying after the start
             load_planner_config(args.planner_config)
         except PlannerConfigError as exc:
             ap.error(f"--planner-config: {exc}")
@@ -682,6 +682,14 @@ def _log_lines(run_dir: Path, child: Optional[Child]) -> list[str]:
         return list(child.lines)
 
 
+def _stopped_early(run_dir: Path, graph: Graph, name: str) -> str:
+    """"node NAME stopped early", with the first error its log shows (the bridge's is
+    reported on its own, below)."""
+    child = next((c for c in graph.children if c.name == name), None)
+    error = None if name == "bridge" else first_error_line(_log_lines(run_dir, child))
+    return f"node {name} stopped early" + (f" ({error})" if error else "")
+
+
 def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
               interrupted: bool, args: argparse.Namespace,
               signals: Sequence[str] = ()) -> dict[str, object]:
@@ -700,7 +708,7 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
         bridge_failed = False
     if crashed or interrupted or bridge_failed or not episode:
         outcome = "error"
-        reasons = [c if c.startswith("instruction:") else f"node {c} stopped early"
+        reasons = [c if c.startswith("instruction:") else _stopped_early(run_dir, graph, c)
                    for c in crashed if c != "wall-timeout"]
         if "wall-timeout" in crashed:
             reasons.append(f"wall timeout {args.wall_timeout_s:.0f}s")

@@ -48,8 +48,11 @@ def test_a_misspelt_family_is_refused_before_any_scene_runs(
     assert "unknown scenario family 'usii'" in summary["detail"]
     assert summary["nodes"] == {} and not list((tmp_path / "run").glob("*.log"))
     # a seed that is no number, or a negative one, is refused by the argument parser
+    # ... and so is a planner config that cannot be read (the planner node died with it)
     for script, flag, value, said in (("benchmark.py", "--seeds", "0,x-3", "'x-3' in '0,x-3'"),
-                                      ("run_graph.py", "--seed", "-1", "-1 is negative")):
+                                      ("run_graph.py", "--seed", "-1", "-1 is negative"),
+                                      ("run_graph.py", "--planner-config",
+                                       str(tmp_path / "none.yaml"), "cannot read it")):
         bad = subprocess.run([sys.executable, str(REPO / "scripts" / script), flag, value],
                              capture_output=True, text=True, timeout=60)
         assert bad.returncode == 2 and said in bad.stderr, (script, bad.stderr)

@@ -237,6 +237,23 @@ def test_first_error_line_of_a_node_log() -> None:
     assert first_error_line(["all fine"]) is None
 
 
+def test_a_node_that_stopped_early_is_named_with_its_first_error(tmp_path: Path) -> None:
+    from types import SimpleNamespace
+
+    from lmpc_scripts.run_graph import _stopped_early
+
+    (tmp_path / "planner.log").write_text(
+        "Traceback (most recent call last):\n  File \"x.py\", line 1\n"
+        "PlannerConfigError: planner config p.yaml: cannot read it\n")
+    (tmp_path / "mpc.log").write_text("[INFO] [1.0] [mpc]: killed, nothing said\n")
+    graph = SimpleNamespace(children=[SimpleNamespace(name=n, lines=[])
+                                      for n in ("planner", "mpc")])
+    assert _stopped_early(tmp_path, graph, "planner") == (  # type: ignore[arg-type]
+        "node planner stopped early (PlannerConfigError: planner config p.yaml: cannot "
+        "read it)")
+    assert _stopped_early(tmp_path, graph, "mpc") == "node mpc stopped early"  # type: ignore
+
+
 def test_a_bridge_that_dies_names_its_first_error_in_the_summary(tmp_path: Path,
                                                                  domain_id: int) -> None:
     # a limit run_graph passes on unchecked: the bridge's config refuses it with a traceback
