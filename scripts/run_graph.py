@@ -421,11 +421,15 @@ def decision_space_mismatch(args: argparse.Namespace) -> Optional[str]:
     """Why the graph must not start: the planner's and the MPC's decision spaces differ
     (or one of the files is bad); None when they are the same (by hash) or no planner runs.
     The MPC would refuse every decision of another space (``lmpc_mpc.controller``)."""
-    if args.planner == "none":
-        return None
     from lmpc_msgs_py.vocabulary import DecisionSpaceError, load_decision_space
     from lmpc_mpc.config import MpcConfigError, load_mpc_config
 
+    if args.planner == "none":  # no decisions; the MPC's own file must still load
+        try:
+            load_mpc_config(args.mpc_config)
+        except MpcConfigError as exc:
+            return f"{exc}; no node started"
+        return None
     try:
         mpc = load_mpc_config(args.mpc_config).decision_space
         planner = load_decision_space(args.decision_space)
@@ -686,7 +690,14 @@ def _stopped_early(run_dir: Path, graph: Graph, name: str) -> str:
     """"node NAME stopped early", with the first error its log shows (the bridge's is
     reported on its own, below)."""
     child = next((c for c in graph.children if c.name == name), None)
-    error = None if name == "bridge" else first_error_line(_log_lines(run_dir, child))
+    error = None
+    if name != "bridge" and child is not None:
+        lines = _log_lines(run_dir, child)
+        error = first_error_line(lines)
+        code = child.proc.returncode
+        if error is None and code is not None and code > 0:
+            # a node that exits with a message of its own (no traceback): its last line
+            error = next((ln.strip()[:600] for ln in reversed(lines) if ln.strip()), None)
     return f"node {name} stopped early" + (f" ({error})" if error else "")
 
 

@@ -246,12 +246,19 @@ def test_a_node_that_stopped_early_is_named_with_its_first_error(tmp_path: Path)
         "Traceback (most recent call last):\n  File \"x.py\", line 1\n"
         "PlannerConfigError: planner config p.yaml: cannot read it\n")
     (tmp_path / "mpc.log").write_text("[INFO] [1.0] [mpc]: killed, nothing said\n")
-    graph = SimpleNamespace(children=[SimpleNamespace(name=n, lines=[])
-                                      for n in ("planner", "mpc")])
+    (tmp_path / "coordinator.log").write_text("[INFO] [1.0] [c]: up\nc: bad file x.yaml\n\n")
+    codes = {"planner": 1, "mpc": -9, "coordinator": 2}
+    graph = SimpleNamespace(children=[
+        SimpleNamespace(name=n, lines=[], proc=SimpleNamespace(returncode=c))
+        for n, c in codes.items()])
     assert _stopped_early(tmp_path, graph, "planner") == (  # type: ignore[arg-type]
         "node planner stopped early (PlannerConfigError: planner config p.yaml: cannot "
         "read it)")
+    # killed by a signal: its last line says nothing about why
     assert _stopped_early(tmp_path, graph, "mpc") == "node mpc stopped early"  # type: ignore
+    # exited with an error code and a message of its own: that message
+    assert _stopped_early(tmp_path, graph, "coordinator") == (  # type: ignore[arg-type]
+        "node coordinator stopped early (c: bad file x.yaml)")
 
 
 def test_a_bridge_that_dies_names_its_first_error_in_the_summary(tmp_path: Path,
