@@ -615,8 +615,8 @@ def unknown_family(args: argparse.Namespace) -> Optional[str]:
 
 
 def scene_failure(run_dir: Path, args: argparse.Namespace, detail: str) -> dict[str, object]:
-    """Summary of a run that never started: its scene file is wrong, or the planner's and
-    the MPC's decision spaces differ."""
+    """Summary of a run that never started: its scene file or family is wrong, the MPC's
+    config does not load, or the planner's and the MPC's decision spaces differ."""
     summary: dict[str, object] = {
         "scenario": str(args.scene) if args.scene is not None else args.scenario,
         "seed": args.seed, "planner": args.planner,
