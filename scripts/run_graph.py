@@ -37,8 +37,10 @@ from typing import IO, Any, Optional, Sequence
 
 if __package__:  # lmpc_scripts.run_graph
     from . import graph_multi
+    from .node_logs import first_error_line, log_lines, stopped_early
 else:  # run by path (scripts/ is on sys.path)
     import graph_multi
+    from node_logs import first_error_line, log_lines, stopped_early
 
 SCRIPTS = Path(__file__).resolve().parent
 EXIT_CODES = {"reached": 0, "collision": 1, "timeout": 2, "error": 3, "off_route": 4}
@@ -650,57 +652,6 @@ def _write_summary(summary: dict[str, object], run_dir: Path,
     return summary
 
 
-def first_error_line(lines: Sequence[str]) -> Optional[str]:
-    """The first error a node's log shows, as one line: a ``scene error:`` line, else the
-    exception line of the first Python traceback (with up to two lines of its message,
-    e.g. pydantic's field and reason), else the first ``[ERROR]`` / ``[FATAL]`` log line."""
-    for line in lines:
-        if line.startswith("scene error:"):
-            return line.strip()
-    for i, line in enumerate(lines):
-        if not line.startswith("Traceback"):
-            continue
-        for j in range(i + 1, len(lines)):
-            if lines[j] and not lines[j].startswith(" "):
-                parts = [lines[j].strip()]
-                for more in lines[j + 1:j + 3]:
-                    if not more.strip() or more.startswith(("Traceback", "During handling",
-                                                            "The above exception", "[")):
-                        break
-                    parts.append(more.strip())
-                return " ".join(parts)[:600]
-        break
-    for line in lines:
-        if line.startswith(("[ERROR]", "[FATAL]")):
-            return line.strip()[:600]
-    return None
-
-
-def _log_lines(run_dir: Path, child: Optional[Child]) -> list[str]:
-    """All lines of a node's log file (``Child.lines`` keeps only the recent ones)."""
-    if child is None:
-        return []
-    try:
-        return (run_dir / f"{child.name}.log").read_text(errors="replace").splitlines()
-    except OSError:
-        return list(child.lines)
-
-
-def _stopped_early(run_dir: Path, graph: Graph, name: str) -> str:
-    """"node NAME stopped early", with the first error its log shows (the bridge's is
-    reported on its own, below)."""
-    child = next((c for c in graph.children if c.name == name), None)
-    error = None
-    if name != "bridge" and child is not None:
-        lines = _log_lines(run_dir, child)
-        error = first_error_line(lines)
-        code = child.proc.returncode
-        if error is None and code is not None and code > 0:
-            # a node that exits with a message of its own (no traceback): its last line
-            error = next((ln.strip()[:600] for ln in reversed(lines) if ln.strip()), None)
-    return f"node {name} stopped early" + (f" ({error})" if error else "")
-
-
 def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
               interrupted: bool, args: argparse.Namespace,
               signals: Sequence[str] = ()) -> dict[str, object]:
@@ -719,14 +670,14 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
         bridge_failed = False
     if crashed or interrupted or bridge_failed or not episode:
         outcome = "error"
-        reasons = [c if c.startswith("instruction:") else _stopped_early(run_dir, graph, c)
+        reasons = [c if c.startswith("instruction:") else stopped_early(run_dir, graph.children, c)
                    for c in crashed if c != "wall-timeout"]
         if "wall-timeout" in crashed:
             reasons.append(f"wall timeout {args.wall_timeout_s:.0f}s")
         if interrupted:
             names = "/".join(dict.fromkeys(signals)) or "an interrupt"
             reasons.append(f"interrupted by {names}")
-        bridge_error = first_error_line(_log_lines(run_dir, bridge)) if bridge_failed \
+        bridge_error = first_error_line(log_lines(run_dir, bridge)) if bridge_failed \
             or not episode else None
         if bridge_error is not None:
             reasons.append(f"bridge: {bridge_error}")

@@ -215,7 +215,7 @@ def test_planner_and_mpc_exit_once_the_bridge_is_gone_for_good(tmp_path: Path,
 
 
 def test_first_error_line_of_a_node_log() -> None:
-    from lmpc_scripts.run_graph import first_error_line
+    from lmpc_scripts.node_logs import first_error_line
 
     log = ["[INFO] [1.0] [sumo_bridge]: building scene usi seed 0 (sync clock)",
            "Traceback (most recent call last):",
@@ -240,7 +240,7 @@ def test_first_error_line_of_a_node_log() -> None:
 def test_a_node_that_stopped_early_is_named_with_its_first_error(tmp_path: Path) -> None:
     from types import SimpleNamespace
 
-    from lmpc_scripts.run_graph import _stopped_early
+    from lmpc_scripts.node_logs import stopped_early
 
     (tmp_path / "planner.log").write_text(
         "Traceback (most recent call last):\n  File \"x.py\", line 1\n"
@@ -248,16 +248,15 @@ def test_a_node_that_stopped_early_is_named_with_its_first_error(tmp_path: Path)
     (tmp_path / "mpc.log").write_text("[INFO] [1.0] [mpc]: killed, nothing said\n")
     (tmp_path / "coordinator.log").write_text("[INFO] [1.0] [c]: up\nc: bad file x.yaml\n\n")
     codes = {"planner": 1, "mpc": -9, "coordinator": 2}
-    graph = SimpleNamespace(children=[
-        SimpleNamespace(name=n, lines=[], proc=SimpleNamespace(returncode=c))
-        for n, c in codes.items()])
-    assert _stopped_early(tmp_path, graph, "planner") == (  # type: ignore[arg-type]
+    children = [SimpleNamespace(name=n, lines=[], proc=SimpleNamespace(returncode=c))
+                for n, c in codes.items()]
+    assert stopped_early(tmp_path, children, "planner") == (  # type: ignore[arg-type]
         "node planner stopped early (PlannerConfigError: planner config p.yaml: cannot "
         "read it)")
     # killed by a signal: its last line says nothing about why
-    assert _stopped_early(tmp_path, graph, "mpc") == "node mpc stopped early"  # type: ignore
+    assert stopped_early(tmp_path, children, "mpc") == "node mpc stopped early"  # type: ignore
     # exited with an error code and a message of its own: that message
-    assert _stopped_early(tmp_path, graph, "coordinator") == (  # type: ignore[arg-type]
+    assert stopped_early(tmp_path, children, "coordinator") == (  # type: ignore[arg-type]
         "node coordinator stopped early (c: bad file x.yaml)")
 
 
