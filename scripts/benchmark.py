@@ -174,12 +174,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if unknown:
         ap.error(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)}")
     if args.scene is None:
-        from lmpc_bridge.scenarios import families as known_families
+        from lmpc_bridge.scenarios import unknown_families
 
-        typos = [f for f in families if f not in known_families()]
+        typos = unknown_families(families)
         if typos:
-            ap.error(f"unknown famil{'y' if len(typos) == 1 else 'ies'} {typos}; choose from "
-                     f"{', '.join(known_families())}")
+            ap.error(typos)
     multi = _multi_module()
     several = [f for f in families if f in multi.MULTI_FAMILIES]
     if several:  # several egos per scene: their own loop and rows (docs/MULTI.md)

@@ -608,12 +608,12 @@ def unknown_family(args: argparse.Namespace) -> Optional[str]:
     """Why ``--scenario`` names no registered family (None: it does, or ``--scene``)."""
     if args.scene is not None:
         return None
-    from lmpc_bridge.scenarios import families
+    from lmpc_bridge.scenarios import unknown_families
 
-    if args.scenario in families():
+    unknown = unknown_families([args.scenario])
+    if unknown is None:
         return None
-    return (f"unknown scenario family {args.scenario!r}; known: {', '.join(families())} "
-            "(or --scene FILE for your own network); no node started")
+    return f"{unknown} (or --scene FILE for your own network); no node started"
 
 
 def scene_failure(run_dir: Path, args: argparse.Namespace, detail: str) -> dict[str, object]:

@@ -79,13 +79,14 @@ def parse_args(argv: Optional[list[str]] = None) -> argparse.Namespace:
 
 def check_args(args: argparse.Namespace) -> Optional[str]:
     """One line saying what is wrong with the arguments, or None."""
-    from lmpc_bridge.scenarios import families
+    from lmpc_bridge.scenarios import unknown_families
 
     if args.seed < MIN_TRAIN_SEED:
         return (f"--seed {args.seed}: training uses seeds >= {MIN_TRAIN_SEED} only (0-24 are "
                 "the published test scenes, 100-124 the development seeds)")
-    if args.family not in families():
-        return f"--family {args.family!r}: choose from {', '.join(families())}"
+    unknown = unknown_families([args.family])
+    if unknown:
+        return f"--family: {unknown}"
     if args.steps < 1 or args.scenes < 1 or args.envs < 1 or args.eval_scenes < 0:
         return "--steps, --scenes and --envs must be >= 1, --eval-scenes >= 0"
     if not args.train_cap >= 0:

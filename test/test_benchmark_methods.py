@@ -37,7 +37,7 @@ def test_a_misspelt_family_is_refused_before_any_scene_runs(
     out = subprocess.run([sys.executable, str(REPO / "scripts" / "benchmark.py"),
                           "--families", "usi,usii", "--seeds", "0", "--out",
                           str(tmp_path / "bench")], capture_output=True, text=True, timeout=60)
-    assert out.returncode == 2 and "unknown family ['usii']" in out.stderr
+    assert out.returncode == 2 and "unknown scenario family 'usii'; known:" in out.stderr
     assert "usi-multi" in out.stderr and not (tmp_path / "bench").exists()
     graph = subprocess.run([sys.executable, str(REPO / "scripts" / "run_graph.py"),
                             "--scenario", "usii", "--run-dir", str(tmp_path / "run"),

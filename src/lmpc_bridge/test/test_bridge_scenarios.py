@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from lmpc_bridge.scenarios import SceneError, build_scene, families
+from lmpc_bridge.scenarios import SceneError, build_scene, families, unknown_families
 
 
 def test_usi_is_registered() -> None:
@@ -16,6 +16,13 @@ def test_usi_is_registered() -> None:
 def test_unknown_family_is_refused(tmp_path: Path) -> None:
     with pytest.raises(SceneError, match="unknown scenario family"):
         build_scene("no_such_family", 0, work_dir=tmp_path)
+    # one message for every entry point (benchmark, run_graph, train_rl): each unknown
+    # name quoted, the registered ones listed; None when all names are known
+    assert unknown_families(["usi", "lane"]) is None
+    said = unknown_families(["usii", "usi", "lanes"])
+    assert said is not None
+    assert said.startswith("unknown scenario families 'usii', 'lanes'; known: ")
+    assert said.split("known: ")[1].split(", ") == list(families())
 
 
 def test_same_seed_same_scene_in_fresh_dirs(tmp_path: Path) -> None:

@@ -21,7 +21,8 @@ from lmpc_bridge.scenarios.base import (
     build_scene,
     families,
     register_family,
+    unknown_families,
 )
 
 __all__ = ["DEFAULT_MAX_TIME_S", "GENERATOR_VERSION", "Scene", "SceneError", "TargetSpec",
-           "build_scene", "families", "register_family"]
+           "build_scene", "families", "register_family", "unknown_families"]

@@ -14,7 +14,7 @@ import shutil
 import subprocess
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable, Protocol
+from typing import Callable, Iterable, Optional, Protocol
 from xml.sax.saxutils import quoteattr
 
 GENERATOR_VERSION = 5
@@ -120,13 +120,25 @@ def families() -> tuple[str, ...]:
     return tuple(sorted(_REGISTRY))
 
 
+def unknown_families(names: Iterable[str]) -> Optional[str]:
+    """The one message for family names that are not registered (None: all are), so the
+    scene builder, the benchmark, the graph runner and training say it the same way."""
+    unknown = [name for name in names if name not in _REGISTRY]
+    if not unknown:
+        return None
+    listed = ", ".join(repr(name) for name in unknown)
+    plural = "families" if len(unknown) > 1 else "family"
+    return f"unknown scenario {plural} {listed}; known: {', '.join(families())}"
+
+
 def build_scene(family: str, seed: int, *, work_dir: Path) -> Scene:
     """Build (or load from the cache) the scene ``(family, seed)`` under ``work_dir``.
 
     Deterministic: the same (family, seed) gives the same files and the same Scene.
     """
-    if family not in _REGISTRY:
-        raise SceneError(f"unknown scenario family {family!r}; known: {', '.join(families())}")
+    unknown = unknown_families([family])
+    if unknown:
+        raise SceneError(unknown)
     if seed < 0:
         raise SceneError(f"seed must be >= 0, got {seed}")
     scene_dir = Path(work_dir) / family / f"seed_{seed:04d}"
