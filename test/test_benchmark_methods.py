@@ -56,6 +56,17 @@ def test_a_misspelt_family_is_refused_before_any_scene_runs(
         bad = subprocess.run([sys.executable, str(REPO / "scripts" / script), flag, value],
                              capture_output=True, text=True, timeout=60)
         assert bad.returncode == 2 and said in bad.stderr, (script, bad.stderr)
+    # an MPC config that cannot be read, with no planner to compare it to: refused too
+    # (the MPC node would have died with it), an error summary and no node log
+    alone = subprocess.run([sys.executable, str(REPO / "scripts" / "run_graph.py"),
+                            "--planner", "none", "--mpc-config", str(tmp_path / "none.yaml"),
+                            "--run-dir", str(tmp_path / "alone"), "--quiet",
+                            "--domain-id", str(domain_id)],
+                           capture_output=True, text=True, timeout=60)
+    summary = json.loads((tmp_path / "alone" / "summary.json").read_text())
+    assert alone.returncode == 3 and summary["outcome"] == "error", alone.stderr
+    assert "MPC config" in summary["detail"] and "cannot read it" in summary["detail"]
+    assert summary["nodes"] == {} and not list((tmp_path / "alone").glob("*.log"))
 
 
 def test_a_factory_named_module_function_is_imported_when_the_method_runs() -> None:
