@@ -62,14 +62,6 @@ class RulesConfig(_Frozen):
     interval (1: the MPC follows a braking bias to a stop since its per-stage bias)."""
     approach_turn_speed_mps: float = Field(default=5.0, gt=0.0, le=30.0)
     """Approaching a turn, slow down to reach the stop line at no more than this speed."""
-    ring_fresh_approach_mps: Optional[float] = Field(default=10.0, gt=0.0, le=30.0)
-    """A roundabout's yield line is approached at this speed by a decision that takes effect
-    within ``ring_fresh_max_latency_s`` of its observation (None: always at
-    ``approach_turn_speed_mps``); a later one, or a careful driver's, slows to
-    ``approach_turn_speed_mps`` (issue 16 item 7; docs/ORACLE.md, "Using it")."""
-    ring_fresh_max_latency_s: float = Field(default=0.5, ge=0.0, le=60.0)
-    """The largest expected decision latency (``DecisionRequest.expected_latency_s``) that
-    still counts as in force at once for ``ring_fresh_approach_mps``."""
     stop_margin_m: float = Field(default=1.0, ge=0.0, le=10.0)
     """Stop this far before the stop line."""
     moving_speed_mps: float = Field(default=0.5, ge=0.0, le=5.0)

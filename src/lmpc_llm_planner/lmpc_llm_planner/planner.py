@@ -193,7 +193,6 @@ def build_request(
     retry_error: Optional[str] = None,
     prior_stages: Optional[dict[str, Any]] = None,
     command: Optional[str] = None,
-    expected_latency_s: Optional[float] = None,
 ) -> DecisionRequest:
     """The request for one backend call: prompt text plus the structured inputs."""
     prompt = build_prompt(
@@ -209,7 +208,7 @@ def build_request(
         prior_stages=dict(prior_stages or {}), instruction=instruction,
         previous=None if previous is None else PreviousDecision.of(previous, space),
         retry_error=retry_error, tokens_estimate=prompt.tokens_estimate,
-        deadline_s=config.deadline_s, expected_latency_s=expected_latency_s,
+        deadline_s=config.deadline_s,
     )
 
 
@@ -237,7 +236,6 @@ class PlannerCore:
         self._t_last_emergency: Optional[float] = None
         self._n = 0
         self._ahead_s = 0.0
-        self._latency_estimate: Optional[float] = None
         self._recent_latency: dict[str, deque[float]] = {
             "normal": deque(maxlen=5), "emergency": deque(maxlen=5)}
         path = log_path if log_path is not None else config.decision_log
@@ -310,7 +308,6 @@ class PlannerCore:
         self.counters.requests += 1
         try:
             ahead = self._ahead_s = self.expected_latency_s(mode)
-            self._latency_estimate = self.latency_estimate_s(mode)
             seen = obs if ahead <= 0.0 else predict_observation(
                 obs, ahead, lookahead_m=self.config.lookahead_m)
             scene = build_scene(
@@ -327,19 +324,11 @@ class PlannerCore:
 
     def expected_latency_s(self, mode: Mode) -> float:
         """How far ahead a decision requested now is decided for (``decide_for_effect_time``):
-        ``latency_estimate_s`` (0 while unknown), at most ``ttl_s``; 0 when off."""
+        the latency it will be given if declared, else the median latency of the last
+        decisions of this mode; at most ``ttl_s``; 0 when off."""
         cfg = self.config
         if not cfg.decide_for_effect_time:
             return 0.0
-        estimate = self.latency_estimate_s(mode)
-        return min(max(estimate or 0.0, 0.0), cfg.ttl_s)
-
-    def latency_estimate_s(self, mode: Mode) -> Optional[float]:
-        """The latency a decision requested now will have: the declared one
-        (``emergency_latency_s``, ``fixed_latency_s``, a simulated backend's), else the
-        median latency of the last decisions of this mode; None before the first decision
-        of a backend that declares none (an LLM whose latency is not known yet)."""
-        cfg = self.config
         declared = cfg.emergency_latency_s if mode == "emergency" else None
         if declared is None:
             declared = cfg.fixed_latency_s
@@ -347,8 +336,8 @@ class PlannerCore:
             declared = getattr(self.backend, "reported_latency_s", None)
         if declared is None:
             recent = self._recent_latency[mode]
-            declared = float(statistics.median(recent)) if recent else None
-        return declared
+            declared = float(statistics.median(recent)) if recent else 0.0
+        return min(max(declared, 0.0), cfg.ttl_s)
 
     # -- one request ----------------------------------------------------------------------
     def _next_meta(self, scene: Scene, *, source: str, mode: Mode, latency_s: float,
@@ -384,7 +373,6 @@ class PlannerCore:
                 scene, config=self.config, space=self.space, mode=mode, stage=stage,
                 instruction=self.instruction, previous=self.last_decision,
                 retry_error=retry_error, prior_stages=prior, command=self.command,
-                expected_latency_s=self._latency_estimate,
             )
             self.counters.backend_calls += 1
             reply = _call_with_deadline(self.backend, request, self.config.deadline_s)

@@ -291,24 +291,3 @@ def test_decide_for_effect_time_predicts_by_the_expected_latency(
     assert measured.expected_latency_s("normal") == 0.0  # nothing measured yet
     measured.on_observation(obs)
     assert 0.02 <= measured.expected_latency_s("normal") < 2.0
-
-
-def test_every_request_carries_the_latency_the_planner_expects(
-        left_turn_map, obs_factory, planner_config, mpc_config):
-    """``DecisionRequest.expected_latency_s`` (the rules' fast ring approach needs a
-    decision in force at once): the declared latency whether or not the planner decides
-    for the effect time, the rules' own 0, None before an undeclared backend's first reply,
-    then the median of its measured latencies."""
-    obs = obs_factory(left_turn_map, ego_v_mps=8.0)
-    for cfg, expected in ((planner_config, 0.0),
-                          (cfg_with(planner_config, fixed_latency_s=2.5), 2.5)):
-        backend = Recording()
-        backend.reported_latency_s = 0.0  # a simulated reasoner declares its latency (rules)
-        PlannerCore(cfg, backend, mpc_config).on_observation(obs)
-        assert backend.requests[-1].expected_latency_s == expected
-    measured = Recording(sleep_s=0.02)
-    core = PlannerCore(planner_config, measured, mpc_config)
-    core.on_observation(obs)
-    assert measured.requests[-1].expected_latency_s is None  # an LLM's first decision
-    core.on_observation(obs_factory(left_turn_map, ego_v_mps=8.0, stamp_s=2.5, seq=1))
-    assert 0.02 <= measured.requests[-1].expected_latency_s < 2.0

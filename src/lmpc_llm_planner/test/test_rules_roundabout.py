@@ -114,24 +114,3 @@ def test_far_out_the_stop_waits_for_the_next_decision(entry, planner_config, mpc
     plan = fresh_plan(urgent)
     assert roundabout_rule(urgent, plan) == "yield"
     assert accel_of(urgent, plan) < 0.0
-
-
-def test_a_decision_in_force_at_once_approaches_the_ring_faster(
-        entry, planner_config, mpc_config):
-    # 40 m before the yield line at 9 m/s, nobody on the ring: a decision that takes
-    # effect at once (the rules alone: expected latency 0) keeps its speed towards the
-    # ring; one that takes effect 2.5 s late, one whose latency is not known yet (an
-    # LLM's first decision) and a careful driver's slow down to the turn speed (5 m/s)
-    def ask(**kw):
-        inp = _inputs(entry, [], planner_config, mpc_config, ego_y_m=-48.0, v_mps=9.0, **kw)
-        plan = fresh_plan(inp)
-        assert roundabout_rule(inp, plan) == "go"
-        return inp.ring_approach_mps, accel_of(inp, plan), plan.notes
-
-    speed, accel, notes = ask(expected_latency_s=0.0)
-    assert speed == 10.0 and accel >= 0.0 and not any("slow down" in n for n in notes)
-    for kw in ({"expected_latency_s": 2.5}, {"expected_latency_s": None},
-               {"expected_latency_s": 0.0, "instruction": "please drive carefully"}):
-        speed, accel, notes = ask(**kw)
-        assert speed == 5.0 and accel < 0.0, kw
-        assert "I slow down to 5 m/s for the turn." in notes, (kw, notes)

@@ -67,10 +67,6 @@ class DecisionRequest:
     """Prompt size estimate (characters / chars_per_token)."""
     deadline_s: float = 8.0
     """Wall time the backend may take; a later reply is discarded by the planner."""
-    expected_latency_s: Optional[float] = None
-    """Sim time from the observation to the decision taking effect, as the planner expects
-    it (``PlannerCore.latency_estimate_s``); None: not known. The rules use it to tell a
-    decision in force at once from a stale one (``ring_fast_approach_max_latency_s``)."""
 
     @property
     def agent_ids(self) -> tuple[str, ...]:

@@ -12,7 +12,7 @@ from lmpc_llm_planner.scene import AgentView, Scene
 
 from .emergency import emergency_answer, start_emergency
 from .headway import headway_rule
-from .instruction import Intent, parse_instruction
+from .instruction import parse_instruction
 from .intervals import neutral
 from .lane import lane_rule
 from .left_turn import left_turn_rule
@@ -72,23 +72,7 @@ def rule_inputs(cfg: RulesConfig, request: DecisionRequest) -> RuleInputs:
         previous_go=prev is not None and prev.accel_bias_mps2 >= 0.0,
         previous_stop=prev is not None and prev.accel_bias_mps2 < lo_neutral,
         emergency=request.mode == "emergency",
-        ring_approach_mps=ring_approach_speed(cfg, request, intent),
     )
-
-
-def ring_approach_speed(cfg: RulesConfig, request: DecisionRequest, intent: Intent) -> float:
-    """How fast the yield line of a roundabout is approached: ``ring_fresh_approach_mps``
-    when the decision takes effect within ``ring_fresh_max_latency_s`` of its observation
-    and the driver was not asked to be careful, else ``approach_turn_speed_mps``. The
-    slow approach is what keeps a stale decision safe at the ring: a go decided 2.5 s
-    before it takes effect, kept at ring speed, met the ring car at the entry (rab 112,
-    a development seed); a decision in force at once sees that car in time (docs/ORACLE.md,
-    "Using it")."""
-    latency = request.expected_latency_s
-    fresh = latency is not None and latency <= cfg.ring_fresh_max_latency_s
-    if fresh and cfg.ring_fresh_approach_mps is not None and intent.style != "conservative":
-        return cfg.ring_fresh_approach_mps
-    return cfg.approach_turn_speed_mps
 
 
 def start_plan(inp: RuleInputs) -> Plan:

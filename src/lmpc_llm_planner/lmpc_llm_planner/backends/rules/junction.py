@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Optional
 
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE
 
@@ -110,15 +109,13 @@ def commit(inp: RuleInputs, plan: Plan, note: str) -> str:
     return "commit"
 
 
-def approach_turn(inp: RuleInputs, plan: Plan, man: Maneuver, v_mps: float,
-                  v_turn_mps: Optional[float] = None) -> None:
-    """Rule 4: slow to ``v_turn_mps`` (default ``approach_turn_speed_mps``) by the stop line
-    (a driver about to turn does; it also leaves room to react to traffic not yet in
-    sensing range)."""
+def approach_turn(inp: RuleInputs, plan: Plan, man: Maneuver, v_mps: float) -> None:
+    """Rule 4: slow to ``approach_turn_speed_mps`` by the stop line (a driver about to turn does;
+    it also leaves room to react to traffic not yet in sensing range)."""
     cfg = inp.cfg
     accel = inp.accel
     d = man.dist_to_stop_line_m - 0.5 * DEFAULT_VEHICLE.length_m
-    v_turn = cfg.approach_turn_speed_mps if v_turn_mps is None else v_turn_mps
+    v_turn = cfg.approach_turn_speed_mps
     if man.inside_junction or d <= 0.0:
         return
     if v_mps > v_turn + 0.5:

@@ -34,9 +34,6 @@ class RuleInputs:
     """The previous decision braked below the neutral interval (a stop under way)."""
     emergency: bool = False
     """An emergency request (no scenario encoding in the answer)."""
-    ring_approach_mps: float = 5.0
-    """The speed at which a roundabout's yield line is reached (``rule_inputs``: faster
-    for a decision in force at once, unless the driver was asked to be careful)."""
 
 
 @dataclass

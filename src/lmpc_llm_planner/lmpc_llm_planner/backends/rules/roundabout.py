@@ -15,6 +15,7 @@ from typing import Mapping, Optional
 
 from lmpc_msgs_py.messages import Lane
 
+from lmpc_llm_planner.config import RulesConfig
 from lmpc_llm_planner.route import Maneuver, next_maneuver
 
 from .intervals import neutral, required_decel, stop_index
@@ -80,6 +81,7 @@ def _enter(inp: RuleInputs, plan: Plan, man: Maneuver, conflicts: list[Conflict]
            margin: float) -> str:
     """Every gap is safe: clear the merge point briskly when close and ring traffic comes;
     far out, approach slowly enough to stop for ring traffic that shows up later."""
+    cfg = inp.cfg
     ego = inp.scene.obs.ego
     half_len = 0.5 * ego.length_m
     if conflicts:
@@ -96,26 +98,25 @@ def _enter(inp: RuleInputs, plan: Plan, man: Maneuver, conflicts: list[Conflict]
         # 12 m/s ten metres out the ego could only commit (rab seeds 19, 112).
         # Far out keep the speed while a comfortable slow-down after the next
         # decision is still possible (slowing from 70 m out cost seconds)
-        v, v_turn = ego.v_mps, inp.ring_approach_mps
+        v, v_turn = ego.v_mps, cfg.approach_turn_speed_mps
         d = man.dist_to_stop_line_m - half_len
-        if v <= v_turn or not _can_slow_later(inp, v, d):
-            approach_turn(inp, plan, man, v, v_turn)
+        if v <= v_turn or not _can_slow_later(cfg, v, d):
+            approach_turn(inp, plan, man, v)
         else:
             _hold_unless_room_to_speed_up(inp, plan, man, v, d)
     return "go"
 
 
-def _can_slow(inp: RuleInputs, v_mps: float, d_m: float) -> bool:
-    """At ``v_mps``, ``d_m`` before the yield line, the ego can slow to the approach speed
-    (``RuleInputs.ring_approach_mps``) comfortably (``commit_decel_mps2``) and short of
-    the go zone."""
-    v_turn = inp.ring_approach_mps
-    return d_m > (v_mps * v_mps - v_turn * v_turn) / (2.0 * inp.cfg.commit_decel_mps2) + GO_ZONE_M
+def _can_slow(cfg: RulesConfig, v_mps: float, d_m: float) -> bool:
+    """At ``v_mps``, ``d_m`` before the yield line, the ego can slow to the turn speed
+    comfortably (``commit_decel_mps2``) and short of the go zone."""
+    v_turn = cfg.approach_turn_speed_mps
+    return d_m > (v_mps * v_mps - v_turn * v_turn) / (2.0 * cfg.commit_decel_mps2) + GO_ZONE_M
 
 
-def _can_slow_later(inp: RuleInputs, v_mps: float, d_m: float) -> bool:
+def _can_slow_later(cfg: RulesConfig, v_mps: float, d_m: float) -> bool:
     """The same after ``replan_s`` more at ``v_mps`` (the next decision)."""
-    return _can_slow(inp, v_mps, d_m - v_mps * inp.cfg.replan_s)
+    return _can_slow(cfg, v_mps, d_m - v_mps * cfg.replan_s)
 
 
 def _hold_unless_room_to_speed_up(inp: RuleInputs, plan: Plan, man: Maneuver, v_mps: float,
@@ -131,7 +132,7 @@ def _hold_unless_room_to_speed_up(inp: RuleInputs, plan: Plan, man: Maneuver, v_
     limit = approach.speed_limit_mps if approach is not None else v_mps
     v_up = min(max(limit, v_mps), v_mps + cfg.turn_accel_mps2 * cfg.replan_s)
     d_up = d_m - 0.5 * (v_mps + v_up) * cfg.replan_s
-    if v_up > v_mps and not _can_slow(inp, v_up, d_up):
+    if v_up > v_mps and not _can_slow(cfg, v_up, d_up):
         plan.hold_speed = ("I keep my speed: after speeding up I could not slow down "
                            "comfortably for the roundabout.")
 
