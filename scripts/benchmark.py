@@ -57,7 +57,7 @@ from typing import Any, Optional, Sequence
 import yaml
 
 from lmpc_bridge.evaluation.decisions import decision_stats, stats_md
-from lmpc_bridge.evaluation.executors import EXECUTORS, ExecutorError
+from lmpc_bridge.evaluation.executors import EXECUTORS, ExecutorError, workers_arg
 from lmpc_bridge.evaluation.replay import replay_check
 from lmpc_bridge.evaluation.rows import (latency_cells, parse_seeds, read_rows, resume_rows,
                                          write_rows)
@@ -110,7 +110,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                          "(<algo>-<family>.npz; default $LMPC_POLICY_DIR, else policies/)")
     ap.add_argument("--list-methods", action="store_true",
                     help="print the registered methods, one line each, and exit")
-    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+    ap.add_argument("--workers", type=workers_arg, default=os.cpu_count() or 1,
                     help="worker processes (with --executor ray and no RAY_ADDRESS: the "
                          "CPUs of the local Ray; on a cluster, its CPUs decide)")
     ap.add_argument("--executor", choices=EXECUTORS, default="pool",

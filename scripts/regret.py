@@ -46,7 +46,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
 
-from lmpc_bridge.evaluation.executors import EXECUTORS, ExecutorError
+from lmpc_bridge.evaluation.executors import EXECUTORS, ExecutorError, workers_arg
 from lmpc_bridge.evaluation.rows import percentile, scene_log_name
 from lmpc_bridge.evaluation.scenes import FAMILY_MAX_TIME_S, SceneSpec, raise_interrupt
 from lmpc_llm_planner.scene import Scene
@@ -691,7 +691,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                          "option until it expires, then the MPC baseline) or rules (the "
                          "rules reasoner at the planner's cadence, as Table I's oracle rows "
                          "with --oracle-continuation rules)")
-    ap.add_argument("--workers", type=int, default=1,
+    ap.add_argument("--workers", type=workers_arg, default=1,
                     help="scenes at once (worker processes / Ray CPUs; default 1)")
     ap.add_argument("--executor", choices=EXECUTORS, default="pool",
                     help="pool: local worker processes (default); ray: Ray tasks, on the "

@@ -177,6 +177,20 @@ def _check_reachable(address: str) -> None:
 Executor = PoolExecutor | RayExecutor
 
 
+def workers_arg(text: str) -> int:
+    """``--workers`` of the benchmark and regret scripts: an integer >= 1 (argparse type;
+    0 or a negative count was taken as 1 without a word)."""
+    import argparse
+
+    try:
+        workers = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if workers < 1:
+        raise argparse.ArgumentTypeError(f"{workers}: at least 1 worker")
+    return workers
+
+
 def make_executor(name: str, workers: int) -> Executor:
     """The executor called ``name`` (one of ``EXECUTORS``) with ``workers`` processes (a
     local Ray: its CPUs; a cluster: its own CPUs decide)."""
