@@ -54,6 +54,10 @@ NODE_MODULES = {
 }
 
 
+MAX_DOMAIN_ID = 232
+"""The largest ROS_DOMAIN_ID whose DDS ports fit (Fast DDS's port arithmetic)."""
+
+
 def ros_env(domain_id: Optional[int] = None) -> dict[str, str]:
     """The environment for the nodes: DDS discovery stays on this machine unless the
     user opened it up (README, multi-machine)."""
@@ -362,6 +366,13 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
         ap.error(f"--rt-priority must be 0 (off) or 1-99, got {args.rt_priority}")
     if args.extra_subscribers < 0:
         ap.error(f"--extra-subscribers must be >= 0, got {args.extra_subscribers}")
+    if args.domain_id is not None and not 0 <= args.domain_id <= MAX_DOMAIN_ID:
+        # a larger id makes DDS ports past 65535: the nodes died at start-up with
+        # "Calculated port number is too high" (ROS 2 advises 0-101 on Linux)
+        ap.error(f"--domain-id must be within 0-{MAX_DOMAIN_ID}, got {args.domain_id}")
+    for name in ("max_time_s", "wall_timeout_s"):
+        if not getattr(args, name) > 0:  # the bridge refused it after the nodes started
+            ap.error(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
     if args.instruction is not None and args.planner == "none":
         ap.error("--instruction needs a planner (the MPC baseline reads no instruction)")
     if args.egos is not None and args.egos < 1:

@@ -52,6 +52,10 @@ def test_a_misspelt_family_is_refused_before_any_scene_runs(
     for script, flag, value, said in (("benchmark.py", "--seeds", "0,x-3", "'x-3' in '0,x-3'"),
                                       ("benchmark.py", "--workers", "0", "at least 1 worker"),
                                       ("regret.py", "--workers", "-2", "at least 1 worker"),
+                                      ("run_graph.py", "--max-time-s", "-5",
+                                       "--max-time-s must be > 0, got -5.0"),
+                                      ("run_graph.py", "--domain-id", "233",
+                                       "--domain-id must be within 0-232"),
                                       ("run_graph.py", "--seed", "-1", "-1 is negative"),
                                       ("run_graph.py", "--planner-config",
                                        str(tmp_path / "none.yaml"), "cannot read it")):
