@@ -176,9 +176,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if args.scene is None:
         from lmpc_bridge.scenarios import unknown_families
 
-        typos = unknown_families(families)
-        if typos:
-            ap.error(typos)
+        misspelt = unknown_families(families)
+        if misspelt:
+            ap.error(misspelt)
     multi = _multi_module()
     several = [f for f in families if f in multi.MULTI_FAMILIES]
     if several:  # several egos per scene: their own loop and rows (docs/MULTI.md)
