@@ -606,13 +606,9 @@ def _start_recorder(graph: Graph, run_dir: Path, params: dict[str, dict[str, obj
 
 def seed_arg(text: str) -> int:
     """``--seed``: a scene seed, an integer >= 0."""
-    try:
-        seed = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if seed < 0:
-        raise argparse.ArgumentTypeError(f"{seed} is negative (seeds are >= 0)")
-    return seed
+    from lmpc_msgs_py.cli import int_arg
+
+    return int_arg(0)(text)
 
 
 def unknown_family(args: argparse.Namespace) -> Optional[str]:

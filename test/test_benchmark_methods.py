@@ -50,13 +50,15 @@ def test_a_misspelt_family_is_refused_before_any_scene_runs(
     # a seed that is no number, or a negative one, is refused by the argument parser
     # ... and so is a planner config that cannot be read (the planner node died with it)
     for script, flag, value, said in (("benchmark.py", "--seeds", "0,x-3", "'x-3' in '0,x-3'"),
-                                      ("benchmark.py", "--workers", "0", "at least 1 worker"),
-                                      ("regret.py", "--workers", "-2", "at least 1 worker"),
+                                      ("benchmark.py", "--workers", "0",
+                                       "--workers: 0 must be >= 1"),
+                                      ("regret.py", "--workers", "-2",
+                                       "--workers: -2 must be >= 1"),
                                       ("run_graph.py", "--max-time-s", "-5",
                                        "--max-time-s must be > 0, got -5.0"),
                                       ("run_graph.py", "--domain-id", "233",
                                        "--domain-id must be within 0-232"),
-                                      ("run_graph.py", "--seed", "-1", "-1 is negative"),
+                                      ("run_graph.py", "--seed", "-1", "--seed: -1 must be >= 0"),
                                       ("run_graph.py", "--planner-config",
                                        str(tmp_path / "none.yaml"), "cannot read it")):
         bad = subprocess.run([sys.executable, str(REPO / "scripts" / script), flag, value],

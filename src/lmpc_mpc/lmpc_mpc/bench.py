@@ -22,10 +22,11 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from typing import Callable, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
+from lmpc_msgs_py.cli import int_arg
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE
 from lmpc_mpc import synthetic as S
 from lmpc_mpc.config import MpcConfig, MpcConfigError, load_mpc_config
@@ -154,20 +155,6 @@ def _solver_arg(text: str) -> str:
     return text
 
 
-def _int_arg(lo: int, hi: Optional[int] = None) -> Callable[[str], int]:
-    """An argparse type: an integer in [lo, hi] (no upper bound when hi is None)."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-        if value < lo or (hi is not None and value > hi):
-            bound = f">= {lo}" if hi is None else f"within {lo}-{hi}"
-            raise argparse.ArgumentTypeError(f"{value} must be {bound}")
-        return value
-    return parse
-
-
 def _horizon_range() -> tuple[int, int]:
     """The horizons ``MpcConfig`` accepts (its field's bounds)."""
     meta = MpcConfig.model_fields["horizon"].metadata
@@ -186,16 +173,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ratios to the first one named (``--solvers``, default FATROP)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     n_lo, n_hi = _horizon_range()
-    ap.add_argument("--horizons", type=_int_arg(n_lo, n_hi), nargs="+", default=[20, 30],
+    ap.add_argument("--horizons", type=int_arg(n_lo, n_hi), nargs="+", default=[20, 30],
                     help=f"control steps N ({n_lo}-{n_hi}, the config's range)")
-    ap.add_argument("--agents", type=_int_arg(0), nargs="+", default=[0, 5, 10, 20])
+    ap.add_argument("--agents", type=int_arg(0), nargs="+", default=[0, 5, 10, 20])
     ap.add_argument("--solvers", nargs="+", default=["fatrop", "sqp_rti", "ipopt"],
                     type=_solver_arg,
                     help=f"any of {', '.join(SOLVERS)}; 'sqp_rti:K' caps the RTI at K "
                          "Gauss-Newton steps per control step (config: rti_iterations)")
-    ap.add_argument("--steps", type=_int_arg(1), default=100,
+    ap.add_argument("--steps", type=int_arg(1), default=100,
                     help="closed-loop steps per cell")
-    ap.add_argument("--present", type=_int_arg(0), default=20,
+    ap.add_argument("--present", type=int_arg(0), default=20,
                     help="agents present in the attention table (0: no such table)")
     ap.add_argument("--config", default=None, help="MPC config YAML (default: packaged)")
     args = ap.parse_args(list(argv) if argv is not None else None)

@@ -24,6 +24,8 @@ import socket
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from typing import Any, Callable, Iterator, Optional, Sequence
 
+from lmpc_msgs_py.cli import int_arg
+
 EXECUTORS = ("pool", "ray")
 """The executors ``make_executor`` knows; ``pool`` is the default everywhere."""
 
@@ -177,18 +179,9 @@ def _check_reachable(address: str) -> None:
 Executor = PoolExecutor | RayExecutor
 
 
-def workers_arg(text: str) -> int:
-    """``--workers`` of the benchmark and regret scripts: an integer >= 1 (argparse type;
-    0 or a negative count was taken as 1 without a word)."""
-    import argparse
-
-    try:
-        workers = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if workers < 1:
-        raise argparse.ArgumentTypeError(f"{workers}: at least 1 worker")
-    return workers
+workers_arg = int_arg(1)
+"""``--workers`` of the benchmark and regret scripts (0 or a negative count was taken as 1
+without a word)."""
 
 
 def make_executor(name: str, workers: int) -> Executor:

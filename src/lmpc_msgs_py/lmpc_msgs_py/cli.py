@@ -1,0 +1,23 @@
+"""Command-line helpers the scripts and packages share."""
+from __future__ import annotations
+
+import argparse
+from typing import Callable, Optional
+
+
+def int_arg(lo: int, hi: Optional[int] = None) -> Callable[[str], int]:
+    """An argparse ``type``: an integer in [lo, hi] (no upper bound when ``hi`` is None),
+    refused with one line naming the value (``'x' is not an integer``, ``-1 must be >=
+    0``, ``0 must be within 2-200``)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if value < lo or (hi is not None and value > hi):
+            bound = f">= {lo}" if hi is None else f"within {lo}-{hi}"
+            raise argparse.ArgumentTypeError(f"{value} must be {bound}")
+        return value
+
+    return parse
