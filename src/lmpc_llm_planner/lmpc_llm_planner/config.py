@@ -62,6 +62,15 @@ class RulesConfig(_Frozen):
     interval (1: the MPC follows a braking bias to a stop since its per-stage bias)."""
     approach_turn_speed_mps: float = Field(default=5.0, gt=0.0, le=30.0)
     """Approaching a turn, slow down to reach the stop line at no more than this speed."""
+    ring_revisit_s: Optional[float] = Field(default=0.5, gt=0.0, le=60.0)
+    """Approaching a roundabout, ask to be asked again this soon (``BackendReply.revisit_s``)
+    and plan the approach for a next decision that acts this much plus the expected
+    latency later instead of ``replan_s``: the ego keeps its speed longer and still slows
+    for ring traffic seen at the next decision, and enters ahead of a ring car in sight
+    when that gap is safe. Only for a normal decision expected to take effect within the
+    revisit (the rules alone: latency 0); one whose latency is longer or not known yet
+    approaches as before. None: off (issue 16 item 7; docs/ORACLE.md, "Using it, third
+    try")."""
     stop_margin_m: float = Field(default=1.0, ge=0.0, le=10.0)
     """Stop this far before the stop line."""
     moving_speed_mps: float = Field(default=0.5, ge=0.0, le=5.0)

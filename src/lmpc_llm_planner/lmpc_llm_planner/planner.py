@@ -3,8 +3,10 @@
 ``PlannerCore.on_observation`` implements the in-process contract of
 docs/ARCHITECTURE.md (``PlannerLike``). Per observation it runs the rule-based
 emergency pre-evaluation (TTC); it requests a decision when ``period_s`` of sim
-time has passed since the last request (the first at the first observation) or at
-once on an emergency (at most every ``emergency_min_interval_s``). A request builds
+time has passed since the last request (the first at the first observation), sooner
+when the last decision's backend asked to be asked again (``BackendReply.revisit_s``:
+the rules near a roundabout's yield line), or at once on an emergency (at most every
+``emergency_min_interval_s``). A request builds
 the prompt, calls the backend under a wall deadline, validates and translates the
 reply; on a timeout, transport error or invalid output it re-asks (carrying the
 error) up to ``max_retries`` times, then emits a ``fallback`` decision (baseline
@@ -104,6 +106,8 @@ class Attempt:
     raw_output: Optional[str]
     error_kind: Optional[str]
     error: str
+    revisit_s: Optional[float] = None
+    """The reply's ``BackendReply.revisit_s`` (replayed from the log)."""
 
 
 @dataclass
@@ -193,6 +197,7 @@ def build_request(
     retry_error: Optional[str] = None,
     prior_stages: Optional[dict[str, Any]] = None,
     command: Optional[str] = None,
+    expected_latency_s: Optional[float] = None,
 ) -> DecisionRequest:
     """The request for one backend call: prompt text plus the structured inputs."""
     prompt = build_prompt(
@@ -208,7 +213,7 @@ def build_request(
         prior_stages=dict(prior_stages or {}), instruction=instruction,
         previous=None if previous is None else PreviousDecision.of(previous, space),
         retry_error=retry_error, tokens_estimate=prompt.tokens_estimate,
-        deadline_s=config.deadline_s,
+        deadline_s=config.deadline_s, expected_latency_s=expected_latency_s,
     )
 
 
@@ -234,8 +239,10 @@ class PlannerCore:
         self.last_emergency: EmergencyCheck = EmergencyCheck(False)
         self._t_last_request: Optional[float] = None
         self._t_last_emergency: Optional[float] = None
+        self._revisit_s: Optional[float] = None
         self._n = 0
         self._ahead_s = 0.0
+        self._latency_estimate: Optional[float] = None
         self._recent_latency: dict[str, deque[float]] = {
             "normal": deque(maxlen=5), "emergency": deque(maxlen=5)}
         path = log_path if log_path is not None else config.decision_log
@@ -281,6 +288,7 @@ class PlannerCore:
             # Time went backwards: a new episode (or a restarted bridge). Start afresh.
             self._t_last_request = None
             self._t_last_emergency = None
+            self._revisit_s = None
         check = emergency_check(obs, self.config)
         self.last_emergency = check
         if check.tripped and (
@@ -288,9 +296,10 @@ class PlannerCore:
             or t - self._t_last_emergency >= self.config.emergency_min_interval_s - TIME_EPS_S
         ):
             return "emergency"
-        if self._t_last_request is None or (
-            t - self._t_last_request >= self.config.period_s - TIME_EPS_S
-        ):
+        period = self.config.period_s
+        if self._revisit_s is not None:
+            period = min(period, self._revisit_s)  # the backend asked to be asked sooner
+        if self._t_last_request is None or t - self._t_last_request >= period - TIME_EPS_S:
             return "normal"
         return None
 
@@ -308,6 +317,7 @@ class PlannerCore:
         self.counters.requests += 1
         try:
             ahead = self._ahead_s = self.expected_latency_s(mode)
+            self._latency_estimate = self.latency_estimate_s(mode)
             seen = obs if ahead <= 0.0 else predict_observation(
                 obs, ahead, lookahead_m=self.config.lookahead_m)
             scene = build_scene(
@@ -324,11 +334,19 @@ class PlannerCore:
 
     def expected_latency_s(self, mode: Mode) -> float:
         """How far ahead a decision requested now is decided for (``decide_for_effect_time``):
-        the latency it will be given if declared, else the median latency of the last
-        decisions of this mode; at most ``ttl_s``; 0 when off."""
+        ``latency_estimate_s`` (0 while unknown), at most ``ttl_s``; 0 when off."""
         cfg = self.config
         if not cfg.decide_for_effect_time:
             return 0.0
+        estimate = self.latency_estimate_s(mode)
+        return min(max(estimate or 0.0, 0.0), cfg.ttl_s)
+
+    def latency_estimate_s(self, mode: Mode) -> Optional[float]:
+        """The latency a decision requested now will have: the declared one
+        (``emergency_latency_s``, ``fixed_latency_s``, a simulated backend's), else the
+        median latency of the last decisions of this mode; None before the first decision
+        of a backend that declares none (an LLM whose latency is not known yet)."""
+        cfg = self.config
         declared = cfg.emergency_latency_s if mode == "emergency" else None
         if declared is None:
             declared = cfg.fixed_latency_s
@@ -336,8 +354,8 @@ class PlannerCore:
             declared = getattr(self.backend, "reported_latency_s", None)
         if declared is None:
             recent = self._recent_latency[mode]
-            declared = float(statistics.median(recent)) if recent else 0.0
-        return min(max(declared, 0.0), cfg.ttl_s)
+            declared = float(statistics.median(recent)) if recent else None
+        return declared
 
     # -- one request ----------------------------------------------------------------------
     def _next_meta(self, scene: Scene, *, source: str, mode: Mode, latency_s: float,
@@ -373,6 +391,7 @@ class PlannerCore:
                 scene, config=self.config, space=self.space, mode=mode, stage=stage,
                 instruction=self.instruction, previous=self.last_decision,
                 retry_error=retry_error, prior_stages=prior, command=self.command,
+                expected_latency_s=self._latency_estimate,
             )
             self.counters.backend_calls += 1
             reply = _call_with_deadline(self.backend, request, self.config.deadline_s)
@@ -395,7 +414,7 @@ class PlannerCore:
                            " tokens); answer again in the compact form, with a reasoning of one "
                            f"short sentence ({msg})")
             attempts.append(Attempt(stage, sha, tokens_in, tokens_out, reply.latency_s,
-                                    reply.text, kind, msg))
+                                    reply.text, kind, msg, reply.revisit_s))
             if wire is not None:
                 return wire
             self.counters.errors[kind or "unknown"] += 1
@@ -446,6 +465,8 @@ class PlannerCore:
         self.counters.floor_additions += len(floor.added)
         self.counters.decisions += 1
         self.last_decision = decision
+        asked = [a.revisit_s for a in attempts if a.error_kind is None and a.revisit_s]
+        self._revisit_s = min(asked) if wire is not None and asked else None
         self._recent_latency[mode].append(decision.latency_s)
         self._log({
             "decision_id": decision.decision_id,

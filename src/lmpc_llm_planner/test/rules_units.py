@@ -11,11 +11,12 @@ from lmpc_llm_planner.scene import build_scene
 
 
 def inputs(obs, planner_config, mpc_config, *, instruction=None, mode="normal",
-           previous=None) -> RuleInputs:
+           previous=None, expected_latency_s=None) -> RuleInputs:
     """The :class:`RuleInputs` of ``obs`` (scene analysed as the planner does)."""
     scene = build_scene(obs, lookahead_m=60.0, max_agents=20)
     req = build_request(scene, config=planner_config, space=mpc_config,
-                        instruction=instruction, mode=mode, previous=previous)
+                        instruction=instruction, mode=mode, previous=previous,
+                        expected_latency_s=expected_latency_s)
     return rule_inputs(planner_config.rules, req)
 
 

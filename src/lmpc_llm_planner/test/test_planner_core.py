@@ -1,6 +1,7 @@
 """PlannerCore: cadence, emergency pre-evaluation, re-ask and fallback, log, ids."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -9,6 +10,7 @@ import pytest
 from lmpc_mpc import synthetic as syn
 
 from lmpc_llm_planner.backends.base import BackendReply, DecisionRequest
+from lmpc_llm_planner.backends.replay import ReplayBackend
 from lmpc_llm_planner.backends.rules import RulesBackend
 from lmpc_llm_planner.config import PlannerConfig
 from lmpc_llm_planner.planner import PlannerCore, emergency_check
@@ -291,3 +293,64 @@ def test_decide_for_effect_time_predicts_by_the_expected_latency(
     assert measured.expected_latency_s("normal") == 0.0  # nothing measured yet
     measured.on_observation(obs)
     assert 0.02 <= measured.expected_latency_s("normal") < 2.0
+
+
+def test_every_request_carries_the_latency_the_planner_expects(
+        left_turn_map, obs_factory, planner_config, mpc_config):
+    """``DecisionRequest.expected_latency_s`` (the rules' fast ring approach needs a
+    decision in force at once): the declared latency whether or not the planner decides
+    for the effect time, the rules' own 0, None before an undeclared backend's first reply,
+    then the median of its measured latencies."""
+    obs = obs_factory(left_turn_map, ego_v_mps=8.0)
+    for cfg, expected in ((planner_config, 0.0),
+                          (cfg_with(planner_config, fixed_latency_s=2.5), 2.5)):
+        backend = Recording()
+        backend.reported_latency_s = 0.0  # a simulated reasoner declares its latency (rules)
+        PlannerCore(cfg, backend, mpc_config).on_observation(obs)
+        assert backend.requests[-1].expected_latency_s == expected
+    measured = Recording(sleep_s=0.02)
+    core = PlannerCore(planner_config, measured, mpc_config)
+    core.on_observation(obs)
+    assert measured.requests[-1].expected_latency_s is None  # an LLM's first decision
+    core.on_observation(obs_factory(left_turn_map, ego_v_mps=8.0, stamp_s=2.5, seq=1))
+    assert 0.02 <= measured.requests[-1].expected_latency_s < 2.0
+
+
+class Revisiting:
+    """The rules, asking to be asked again after 0.5 s while the sim time is below 2 s."""
+
+    name = "rules"
+    reported_latency_s = 0.0
+
+    def __init__(self) -> None:
+        self.rules = RulesBackend()
+
+    def complete(self, request: DecisionRequest) -> BackendReply:
+        reply = self.rules.complete(request)
+        soon = request.scene.obs.stamp_s < 2.0 - 1e-9
+        return dataclasses.replace(reply, revisit_s=0.5 if soon else None)
+
+
+def test_a_backend_may_ask_to_be_asked_again_sooner_and_a_replay_repeats_it(
+        left_turn_map, obs_factory, planner_config, mpc_config, tmp_path):
+    """``BackendReply.revisit_s`` (the rules approaching a roundabout) shortens the time
+    to the next request below ``period_s``; without it the period is back. The log keeps
+    it, so a replayed run requests at the same instants with the same answers."""
+    log = tmp_path / "decisions.jsonl"
+    core = PlannerCore(planner_config, Revisiting(), mpc_config, log_path=log)
+    ds = run(core, left_turn_map, obs_factory, t_end_s=7.0)
+    stamps = [round(d.stamp_s, 3) for d in ds]
+    assert stamps == [0.0, 0.5, 1.0, 1.5, 2.0, 4.5, 7.0]
+    assert [json.loads(line)["attempts"][0]["revisit_s"] for line in log.read_text()
+            .splitlines()] == [0.5, 0.5, 0.5, 0.5, None, None, None]
+    replay_cfg = cfg_with(planner_config, backend="replay",
+                          replay={"log_path": str(log), "latency": "report"})
+    replayed = run(PlannerCore(replay_cfg, ReplayBackend.from_config(replay_cfg.replay),
+                               mpc_config), left_turn_map, obs_factory, t_end_s=7.0)
+    assert [d.model_dump(exclude={"source"}) for d in replayed] == \
+        [d.model_dump(exclude={"source"}) for d in ds]
+    # a fallback (no backend answer) goes back to the period
+    core = PlannerCore(planner_config, Recording(["prose"] * 10), mpc_config)
+    core._revisit_s = 0.5
+    ds = run(core, left_turn_map, obs_factory, t_end_s=3.0)
+    assert [round(d.stamp_s, 3) for d in ds] == [0.0, 2.5]

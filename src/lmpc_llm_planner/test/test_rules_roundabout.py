@@ -114,3 +114,45 @@ def test_far_out_the_stop_waits_for_the_next_decision(entry, planner_config, mpc
     plan = fresh_plan(urgent)
     assert roundabout_rule(urgent, plan) == "yield"
     assert accel_of(urgent, plan) < 0.0
+
+
+def test_a_decision_in_force_soon_asks_again_soon_and_keeps_its_speed_longer(
+        entry, planner_config, mpc_config):
+    # 36 m before the yield line at 10 m/s, nobody on the ring. Decided again 2.5 s
+    # later, the ego must start slowing to the turn speed now; a decision in force at
+    # once (the rules alone: expected latency 0) asks to be asked again after 0.5 s
+    # (ring_revisit_s) and keeps its speed until then
+    def ask(**kw):
+        inp = _inputs(entry, [], planner_config, mpc_config, ego_y_m=-46.0, v_mps=10.0, **kw)
+        plan = fresh_plan(inp)
+        assert roundabout_rule(inp, plan) == "go"
+        return plan.revisit_s, accel_of(inp, plan), plan.notes
+
+    revisit, accel, notes = ask(expected_latency_s=0.0)
+    assert revisit == planner_config.rules.ring_revisit_s == 0.5
+    assert accel >= 0.0 and not any("slow down" in n for n in notes)
+    # a decision that acts later than the revisit, one whose latency is not known yet
+    # (an LLM's first) and an emergency answer approach as before
+    for kw in ({"expected_latency_s": 1.5}, {"expected_latency_s": None},
+               {"expected_latency_s": 0.0, "mode": "emergency"}):
+        revisit, accel, notes = ask(**kw)
+        assert revisit is None and accel < 0.0, kw
+        assert "I slow down to 5 m/s for the turn." in notes, (kw, notes)
+
+
+def test_a_decision_in_force_soon_enters_ahead_of_a_ring_car_it_can_beat(
+        entry, planner_config, mpc_config):
+    # 36 m out at 10 m/s, a ring car far enough upstream that the gap is safe: go now
+    # (accelerate) instead of approaching slowly, which would close the gap
+    agents = [ring_car("circ", x_m=-50.0, v_mps=6.0)]
+    soon = _inputs(entry, agents, planner_config, mpc_config, ego_y_m=-46.0, v_mps=10.0,
+                   expected_latency_s=0.0)
+    plan = fresh_plan(soon)
+    assert roundabout_rule(soon, plan) == "go"
+    assert accel_of(soon, plan) > 0.0 and plan.revisit_s == 0.5
+    assert "gap in the ring traffic" in plan.notes[0]
+    late = _inputs(entry, agents, planner_config, mpc_config, ego_y_m=-46.0, v_mps=10.0,
+                   expected_latency_s=None)
+    plan = fresh_plan(late)
+    assert roundabout_rule(late, plan) == "go"
+    assert accel_of(late, plan) < 0.0 and plan.revisit_s is None

@@ -67,6 +67,10 @@ class DecisionRequest:
     """Prompt size estimate (characters / chars_per_token)."""
     deadline_s: float = 8.0
     """Wall time the backend may take; a later reply is discarded by the planner."""
+    expected_latency_s: Optional[float] = None
+    """Sim time from the observation to the decision taking effect, as the planner expects
+    it (``PlannerCore.latency_estimate_s``); None: not known. The rules use it to tell a
+    decision that acts soon after its observation from a stale one (``ring_revisit_s``)."""
 
     @property
     def agent_ids(self) -> tuple[str, ...]:
@@ -86,6 +90,11 @@ class BackendReply:
     truncated: bool = False
     """The server stopped at the output limit (``finish_reason: length``): the text is
     probably cut off, and the re-ask says so."""
+    revisit_s: Optional[float] = None
+    """The backend asks to be asked again this much sim time after the request, sooner
+    than the planner's ``period_s`` (the rules approaching a roundabout's yield line:
+    ``RulesConfig.ring_revisit_s``); None: at the planner's period. Logged with the call
+    and replayed, so a replayed run requests at the same instants."""
 
     @property
     def ok(self) -> bool:

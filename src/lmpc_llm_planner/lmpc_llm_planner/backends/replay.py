@@ -69,6 +69,8 @@ class RecordedCall:
     latency_s: float
     tokens_in: int
     tokens_out: int
+    revisit_s: Optional[float] = None
+    """The recorded reply's ``revisit_s`` (the planner then asks again at the same time)."""
 
     def reply(self, latency_s: float) -> BackendReply:
         if self.raw_output is None:
@@ -76,7 +78,8 @@ class RecordedCall:
             return BackendReply(text=None, latency_s=latency_s, error_kind=kind,
                                 error=self.error or kind)  # verbatim: it goes into the re-ask
         return BackendReply(text=self.raw_output, latency_s=latency_s,
-                            tokens_in=self.tokens_in, tokens_out=self.tokens_out)
+                            tokens_in=self.tokens_in, tokens_out=self.tokens_out,
+                            revisit_s=self.revisit_s)
 
 
 @dataclass(frozen=True)
@@ -135,6 +138,7 @@ def load_replay_log(path: str | Path) -> ReplayLog:
                     latency_s=_float(a.get("latency_s")),
                     tokens_in=_int(a.get("tokens_in")),
                     tokens_out=_int(a.get("tokens_out")),
+                    revisit_s=_float(a.get("revisit_s")) or None,
                 )
                 for i, a in enumerate(attempts)
             ]

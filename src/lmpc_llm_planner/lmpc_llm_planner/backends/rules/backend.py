@@ -39,21 +39,26 @@ class RulesBackend:
     def complete(self, request: DecisionRequest) -> BackendReply:
         """Answer with the decision JSON (the stage's part in chained mode)."""
         t0 = time.perf_counter()
-        answer = self.decide(request)
+        answer, plan = self.reason(request)
         if request.stage != "all":
             answer = {"reasoning": answer["reasoning"], request.stage: answer[request.stage]}
         text = json.dumps(answer, separators=(",", ":"))
-        return BackendReply(text=text, latency_s=time.perf_counter() - t0)
+        return BackendReply(text=text, latency_s=time.perf_counter() - t0,
+                            revisit_s=plan.revisit_s)
 
     # -- reasoning ------------------------------------------------------------------------
     def decide(self, request: DecisionRequest) -> dict[str, Any]:
         """The full answer object (all stages, or the emergency variant)."""
+        return self.reason(request)[0]
+
+    def reason(self, request: DecisionRequest) -> tuple[dict[str, Any], Plan]:
+        """The full answer object and the plan behind it."""
         inp = rule_inputs(self.config, request)
         plan = start_plan(inp)
         run_rules(inp, plan)
         if inp.emergency:
-            return emergency_answer(plan)
-        return answer(inp.scene, plan)
+            return emergency_answer(plan), plan
+        return answer(inp.scene, plan), plan
 
 
 def rule_inputs(cfg: RulesConfig, request: DecisionRequest) -> RuleInputs:
@@ -65,6 +70,11 @@ def rule_inputs(cfg: RulesConfig, request: DecisionRequest) -> RuleInputs:
                   "aggressive": cfg.aggressive_gap_factor}.get(intent.style, 1.0)
     lo_neutral = accel[neutral(accel)][0]
     prev = request.previous
+    revisit, latency = cfg.ring_revisit_s, request.expected_latency_s
+    # only a normal decision that comes back within the revisit (at most one in flight):
+    # a slower one would act on a scene older than the revisit promises
+    soon = revisit is not None and latency is not None and latency <= revisit \
+        and request.mode == "normal"
     return RuleInputs(
         cfg=cfg, scene=request.scene, accel=accel, steer=request.steer_intervals_rad,
         intent=intent,
@@ -72,6 +82,8 @@ def rule_inputs(cfg: RulesConfig, request: DecisionRequest) -> RuleInputs:
         previous_go=prev is not None and prev.accel_bias_mps2 >= 0.0,
         previous_stop=prev is not None and prev.accel_bias_mps2 < lo_neutral,
         emergency=request.mode == "emergency",
+        ring_revisit_s=revisit if soon else None,
+        ring_react_s=revisit + latency if soon else None,  # type: ignore[operator]
     )
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Optional
 
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE
 
@@ -85,12 +86,15 @@ def stop_brake_limit_mps2(inp: RuleInputs) -> float:
     return inp.cfg.commit_decel_mps2
 
 
-def stop_can_wait(inp: RuleInputs, v_mps: float, d_stop_m: float) -> bool:
+def stop_can_wait(inp: RuleInputs, v_mps: float, d_stop_m: float,
+                  next_s: Optional[float] = None) -> bool:
     """Far from the line (and not an emergency): braking to a stop now would stop well short
-    of it, and stopping after the next decision (``replan_s``) is still comfortable."""
+    of it, and stopping after the next decision (``next_s``, default ``replan_s``) is still
+    comfortable."""
     cfg = inp.cfg
+    t_next = cfg.replan_s if next_s is None else next_s
     return not inp.emergency and v_mps >= cfg.moving_speed_mps and \
-        d_stop_m - v_mps * cfg.replan_s > v_mps * v_mps / (2.0 * cfg.commit_decel_mps2) + 5.0
+        d_stop_m - v_mps * t_next > v_mps * v_mps / (2.0 * cfg.commit_decel_mps2) + 5.0
 
 
 def go_briskly(inp: RuleInputs, plan: Plan, *, committed: bool = False) -> None:
@@ -109,9 +113,11 @@ def commit(inp: RuleInputs, plan: Plan, note: str) -> str:
     return "commit"
 
 
-def approach_turn(inp: RuleInputs, plan: Plan, man: Maneuver, v_mps: float) -> None:
+def approach_turn(inp: RuleInputs, plan: Plan, man: Maneuver, v_mps: float,
+                  next_s: Optional[float] = None) -> None:
     """Rule 4: slow to ``approach_turn_speed_mps`` by the stop line (a driver about to turn does;
-    it also leaves room to react to traffic not yet in sensing range)."""
+    it also leaves room to react to traffic not yet in sensing range). The next decision
+    acts ``next_s`` later (default ``replan_s``)."""
     cfg = inp.cfg
     accel = inp.accel
     d = man.dist_to_stop_line_m - 0.5 * DEFAULT_VEHICLE.length_m
@@ -128,8 +134,9 @@ def approach_turn(inp: RuleInputs, plan: Plan, man: Maneuver, v_mps: float) -> N
             plan.notes.append(f"I slow down to {v_turn:.0f} m/s for the turn.")
             return
     # at about the turn speed, hold it: an accelerating bias lasts until the next
-    # decision (``replan_s``) and would arrive too fast to stop for a late gap
-    if v_mps + mid(accel[mildest_accel(accel)]) * cfg.replan_s >= v_turn + 1.0:
+    # decision (``next_s``) and would arrive too fast to stop for a late gap
+    t_next = cfg.replan_s if next_s is None else next_s
+    if v_mps + mid(accel[mildest_accel(accel)]) * t_next >= v_turn + 1.0:
         plan.accel_index = neutral(accel)
         plan.speed_set = True
         plan.weights["action"] = "high"

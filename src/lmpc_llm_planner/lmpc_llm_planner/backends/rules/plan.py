@@ -34,6 +34,14 @@ class RuleInputs:
     """The previous decision braked below the neutral interval (a stop under way)."""
     emergency: bool = False
     """An emergency request (no scenario encoding in the answer)."""
+    ring_revisit_s: Optional[float] = None
+    """Near a roundabout's yield line the rules ask to be asked again this soon
+    (``RulesConfig.ring_revisit_s``; None: not here, the decision after this one comes
+    ``replan_s`` later)."""
+    ring_react_s: Optional[float] = None
+    """With ``ring_revisit_s``: the sim time from this decision's observation until the
+    next one acts (the revisit plus the expected latency), which the ring approach plans
+    for instead of ``replan_s``."""
 
 
 @dataclass
@@ -55,6 +63,8 @@ class Plan:
     notes: list[str] = field(default_factory=list)
     ego_index: Optional[int] = None
     """The ego candidate chosen by the lane rule (None: the route candidate)."""
+    revisit_s: Optional[float] = None
+    """Ask to be asked again this soon (``BackendReply.revisit_s``; None: at the period)."""
 
     def attend(self, view: AgentView, why: str) -> None:
         self.attention.setdefault(view.id, why)

@@ -42,6 +42,8 @@ def roundabout_rule(inp: RuleInputs, plan: Plan) -> str:
     if approach is None or approach.roundabout or ring is None or not ring.roundabout:
         return "none"
     conflicts = ring_conflicts(inp, man, ring)
+    if inp.ring_revisit_s is not None and not man.inside_junction:
+        plan.revisit_s = inp.ring_revisit_s  # see the approach through, decision by decision
     for c in conflicts:
         plan.attend(c.view, "on the roundabout, has priority at my entry")
     margin = inp.safe_gap_s - (cfg.go_hysteresis_s if inp.previous_go else 0.0)
@@ -89,7 +91,12 @@ def _enter(inp: RuleInputs, plan: Plan, man: Maneuver, conflicts: list[Conflict]
             f"I enter the roundabout; the gap in the ring traffic is "
             f"{min(c.gap_s for c in conflicts):.1f} s beyond my clearing time "
             f"(enough from {margin:.1f} s).")
-    if man.inside_junction or man.dist_to_stop_line_m < half_len + GO_ZONE_M:
+    # a ring car in sight that the ego would pass ahead of (every gap safe): go now and
+    # keep that gap; approaching slowly first would close it (the oracle's regret on rab
+    # lies in these early decisions: docs/ORACLE.md). Only when the rules decide again
+    # soon (``ring_revisit_s``): a car that shows up later is seen within it.
+    ahead = bool(conflicts) and inp.ring_revisit_s is not None
+    if ahead or man.inside_junction or man.dist_to_stop_line_m < half_len + GO_ZONE_M:
         if conflicts:  # clear the merge point before the ring car arrives
             go_briskly(inp, plan)
     else:
@@ -100,11 +107,18 @@ def _enter(inp: RuleInputs, plan: Plan, man: Maneuver, conflicts: list[Conflict]
         # decision is still possible (slowing from 70 m out cost seconds)
         v, v_turn = ego.v_mps, cfg.approach_turn_speed_mps
         d = man.dist_to_stop_line_m - half_len
-        if v <= v_turn or not _can_slow_later(cfg, v, d):
-            approach_turn(inp, plan, man, v)
+        if v <= v_turn or not _can_slow_later(inp, v, d):
+            approach_turn(inp, plan, man, v, next_s(inp))
         else:
             _hold_unless_room_to_speed_up(inp, plan, man, v, d)
     return "go"
+
+
+def next_s(inp: RuleInputs) -> float:
+    """Sim time from this decision's observation until the next decision acts: the
+    revisit plus the expected latency when the rules ask to be asked again near the ring
+    (``RuleInputs.ring_react_s``), else ``replan_s``."""
+    return inp.ring_react_s if inp.ring_react_s is not None else inp.cfg.replan_s
 
 
 def _can_slow(cfg: RulesConfig, v_mps: float, d_m: float) -> bool:
@@ -114,9 +128,9 @@ def _can_slow(cfg: RulesConfig, v_mps: float, d_m: float) -> bool:
     return d_m > (v_mps * v_mps - v_turn * v_turn) / (2.0 * cfg.commit_decel_mps2) + GO_ZONE_M
 
 
-def _can_slow_later(cfg: RulesConfig, v_mps: float, d_m: float) -> bool:
-    """The same after ``replan_s`` more at ``v_mps`` (the next decision)."""
-    return _can_slow(cfg, v_mps, d_m - v_mps * cfg.replan_s)
+def _can_slow_later(inp: RuleInputs, v_mps: float, d_m: float) -> bool:
+    """The same when the next decision acts (``next_s``), at ``v_mps`` until then."""
+    return _can_slow(inp.cfg, v_mps, d_m - v_mps * next_s(inp))
 
 
 def _hold_unless_room_to_speed_up(inp: RuleInputs, plan: Plan, man: Maneuver, v_mps: float,
@@ -124,14 +138,15 @@ def _hold_unless_room_to_speed_up(inp: RuleInputs, plan: Plan, man: Maneuver, v_
     """Far from the yield line: the way-is-clear rule would speed up towards the limit,
     and that speed-up lasts until the next decision. Where the ego could no longer slow
     comfortably after it (checked as if it accelerated at ``turn_accel_mps2`` for
-    ``replan_s``), the go rule keeps the speed instead (``Plan.hold_speed``): rab seed
+    ``next_s``), the go rule keeps the speed instead (``Plan.hold_speed``): rab seed
     10049 (training) sped up from 9.3 to 12.5 m/s 50 m out, was then too close to stop
     for the ring car it had not seen yet, committed, and was hit in the entry."""
     cfg = inp.cfg
     approach = inp.scene.lanes.get(man.approach_lane_id)
     limit = approach.speed_limit_mps if approach is not None else v_mps
-    v_up = min(max(limit, v_mps), v_mps + cfg.turn_accel_mps2 * cfg.replan_s)
-    d_up = d_m - 0.5 * (v_mps + v_up) * cfg.replan_s
+    t_next = next_s(inp)
+    v_up = min(max(limit, v_mps), v_mps + cfg.turn_accel_mps2 * t_next)
+    d_up = d_m - 0.5 * (v_mps + v_up) * t_next
     if v_up > v_mps and not _can_slow(cfg, v_up, d_up):
         plan.hold_speed = ("I keep my speed: after speeding up I could not slow down "
                            "comfortably for the roundabout.")
@@ -156,7 +171,7 @@ def _give_way(inp: RuleInputs, plan: Plan, man: Maneuver, unsafe: list[Conflict]
     reason = (f"I must give way to {worst.view.id} on the roundabout: it reaches my "
               f"entry in {worst.t_agent_s:.1f} s, I would need {worst.t_clear_s:.1f} s "
               f"to enter (gap {worst.gap_s:.1f} s, enough from {margin:.1f} s).")
-    if stop_can_wait(inp, v, d_stop):
+    if stop_can_wait(inp, v, d_stop, next_s(inp)):
         plan.accel_index = neutral(inp.accel)  # far: stopping now would stop well short
         plan.notes.append(reason + f" I keep my speed for now and stop at the yield line "
                           f"({d_stop:.0f} m) if the gap stays too small.")
