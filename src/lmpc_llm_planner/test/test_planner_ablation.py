@@ -2,6 +2,7 @@
 each keeps its half of the rules' answer and replaces the other with the baseline's."""
 from __future__ import annotations
 
+import dataclasses
 import json
 
 from rules_kit import car, road_obs
@@ -84,3 +85,24 @@ def test_a_reply_that_is_not_an_answer_passes_unchanged(road, planner_config, sp
     for text in ("not json", "[1, 2]", '{"reasoning": "x"}'):
         wrapped = AblatedBackend(_Fixed(text), "encoding")
         assert wrapped.complete(req).text == text and wrapped.rewritten == 0
+
+
+class _Asks:
+    """A backend whose answers ask to be asked again after 0.5 s (the rules near a ring)."""
+
+    name = "rules"
+
+    def __init__(self, planner_config):
+        self.inner = RulesBackend(planner_config.rules)
+
+    def complete(self, request):
+        return dataclasses.replace(self.inner.complete(request), revisit_s=0.5)
+
+
+def test_the_early_revisit_goes_with_the_action_half(road, planner_config, space):
+    # the rules plan a roundabout approach on braking at the decision they ask for 0.5 s
+    # later; an encoding-only answer cannot brake, so it is asked at the period
+    req = _request(road, planner_config, space)
+    inner = _Asks(planner_config)
+    assert AblatedBackend(inner, "encoding").complete(req).revisit_s is None
+    assert AblatedBackend(inner, "action").complete(req).revisit_s == 0.5

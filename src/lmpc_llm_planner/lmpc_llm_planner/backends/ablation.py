@@ -15,6 +15,10 @@ shows what the MPC was really given:
   attended, each predicted along the candidate closest to its heading); an emergency
   answer (no encoding: baseline attention already) is left as it is.
 
+A reply's ``revisit_s`` (the rules asking to be asked again soon near a roundabout) is
+part of A_hat: the rules plan their approach on braking at that next decision, which an
+encoding-only answer cannot do, so ``keep="encoding"`` drops it (the period applies).
+
 Works on both answer forms (single call and chained stages): it rewrites whichever of
 ``scenario_encoding`` / ``action_guidance`` / ``weight_adjustment`` a reply carries. A
 reply that is not a JSON object is passed on unchanged (the planner refuses it as it
@@ -64,6 +68,8 @@ class AblatedBackend:
 
     def complete(self, request: DecisionRequest) -> BackendReply:
         reply = self.inner.complete(request)
+        if self.keep == "encoding" and reply.revisit_s is not None:
+            reply = dataclasses.replace(reply, revisit_s=None)
         if not reply.ok or reply.text is None:
             return reply
         try:
