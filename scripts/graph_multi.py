@@ -39,9 +39,21 @@ PEER_WAIT_SYNC_S = 2.0
 silent for 0.5 s sim (5 steps, ~10 s wall), then it no longer takes part."""
 
 
+def int_in(lo: int, hi: Optional[int] = None) -> Any:
+    """An argparse ``type``: ``lmpc_msgs_py.cli.int_arg(lo, hi)``, imported when an
+    argument is parsed (the launcher imports no package before it has to: start-up)."""
+
+    def parse(text: str) -> int:
+        from lmpc_msgs_py.cli import int_arg
+
+        return int_arg(lo, hi)(text)
+
+    return parse
+
+
 def add_args(ap: argparse.ArgumentParser) -> None:
     """run_graph's options of a multi-ego graph."""
-    ap.add_argument("--egos", type=int, metavar="N",
+    ap.add_argument("--egos", type=int_in(1), metavar="N",
                     help="controlled vehicles ego_1..ego_N, one MPC and one planner process "
                          "each under /ego_k/lmpc/... (default: the family's; 1 = today's "
                          "single-ego graph under /lmpc/...; docs/MULTI.md)")

@@ -320,18 +320,21 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
                     help="run folder (default runs/<scenario>-<seed>-<time>; with --scene "
                          "runs/<scene file stem>-<time>)")
     ap.add_argument("--summary-json", type=Path, help="also write the summary here")
-    ap.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID for this run (default: env)")
+    # a larger id makes DDS ports past 65535: the nodes died at start-up with "Calculated
+    # port number is too high" (ROS 2 advises 0-101 on Linux)
+    ap.add_argument("--domain-id", type=int_in(0, MAX_DOMAIN_ID),
+                    help=f"ROS_DOMAIN_ID for this run, 0-{MAX_DOMAIN_ID} (default: env)")
     ap.add_argument("--max-time-s", type=float, default=200.0, help="episode limit, sim seconds")
     ap.add_argument("--wall-timeout-s", type=float, default=900.0,
                     help="stop everything after this many wall seconds")
     ap.add_argument("--record", action="store_true",
                     help="record every topic to <run-dir>/bag (rosbag2, MCAP storage)")
-    ap.add_argument("--extra-subscribers", type=int, default=0, metavar="N",
+    ap.add_argument("--extra-subscribers", type=int_in(0), default=0, metavar="N",
                     help="sync clock: before step 0 also wait for N subscribers of "
                          "/lmpc/ego_state besides the graph's own (your monitor; it should "
                          "subscribe to the ego state once it hears the topics it watches)")
     ap.add_argument("--quiet", action="store_true", help="do not echo node logs")
-    ap.add_argument("--rt-priority", type=int, default=0, metavar="N",
+    ap.add_argument("--rt-priority", type=int_in(0, 99), default=0, metavar="N",
                     help="run the 10 Hz loop (bridge, MPC and, except with --planner local, "
                          "the planner) with SCHED_FIFO priority N (1-99; needs CAP_SYS_NICE, "
                          "else they say so and run normally; default 0: off). Keeps the "
@@ -362,21 +365,11 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
             ap.error(f"--planner-config: {exc}")
     if args.planner == "mock" and args.mock_script is None:
         ap.error("--planner mock needs --mock-script FILE")
-    if not 0 <= args.rt_priority <= 99:
-        ap.error(f"--rt-priority must be 0 (off) or 1-99, got {args.rt_priority}")
-    if args.extra_subscribers < 0:
-        ap.error(f"--extra-subscribers must be >= 0, got {args.extra_subscribers}")
-    if args.domain_id is not None and not 0 <= args.domain_id <= MAX_DOMAIN_ID:
-        # a larger id makes DDS ports past 65535: the nodes died at start-up with
-        # "Calculated port number is too high" (ROS 2 advises 0-101 on Linux)
-        ap.error(f"--domain-id must be within 0-{MAX_DOMAIN_ID}, got {args.domain_id}")
     for name in ("max_time_s", "wall_timeout_s"):
         if not getattr(args, name) > 0:  # the bridge refused it after the nodes started
             ap.error(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
     if args.instruction is not None and args.planner == "none":
         ap.error("--instruction needs a planner (the MPC baseline reads no instruction)")
-    if args.egos is not None and args.egos < 1:
-        ap.error(f"--egos must be >= 1, got {args.egos}")
     return args
 
 
@@ -604,11 +597,9 @@ def _start_recorder(graph: Graph, run_dir: Path, params: dict[str, dict[str, obj
     _wait_for_log(recorder, "recording to", timeout_s=30.0)
 
 
-def seed_arg(text: str) -> int:
-    """``--seed``: a scene seed, an integer >= 0."""
-    from lmpc_msgs_py.cli import int_arg
-
-    return int_arg(0)(text)
+int_in = graph_multi.int_in
+seed_arg = int_in(0)
+"""``--seed``: a scene seed, an integer >= 0."""
 
 
 def unknown_family(args: argparse.Namespace) -> Optional[str]:

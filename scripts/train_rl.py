@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
+from lmpc_msgs_py.cli import int_arg
 
 REPO = Path(__file__).resolve().parent.parent
 MIN_TRAIN_SEED = 10000
@@ -57,17 +58,18 @@ def parse_args(argv: Optional[list[str]] = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--algo", required=True, choices=("dqn", "ppo", "sac"))
     p.add_argument("--family", required=True)
-    p.add_argument("--steps", type=int, required=True, help="environment steps in all")
+    p.add_argument("--steps", type=int_arg(1), required=True, help="environment steps in all")
     p.add_argument("--seed", type=int, required=True,
                    help=f"RNG seed and first scene seed (>= {MIN_TRAIN_SEED})")
-    p.add_argument("--scenes", type=int, default=200, help="scene seeds seed..seed+N-1")
-    p.add_argument("--envs", type=int, default=2, help="parallel environments (processes)")
+    p.add_argument("--scenes", type=int_arg(1), default=200, help="scene seeds seed..seed+N-1")
+    p.add_argument("--envs", type=int_arg(1), default=2,
+                   help="parallel environments (processes)")
     p.add_argument("--train-cap", type=float, default=TRAIN_CAP,
                    help="end a training episode still running after this many times its "
                         "estimated steps (truncated, outcome 'cap'; 0, the default: only the "
                         "200 s cap; docs/RL.md)")
     p.add_argument("--out", type=Path, default=None)
-    p.add_argument("--eval-scenes", type=int, default=10,
+    p.add_argument("--eval-scenes", type=int_arg(0), default=10,
                    help="after training, drive this many further training scenes (the "
                         "seeds after the training ones) with the greedy policy and with "
                         "the neutral action (the mpc method); 0: none")
@@ -87,8 +89,6 @@ def check_args(args: argparse.Namespace) -> Optional[str]:
     unknown = unknown_families([args.family])
     if unknown:
         return f"--family: {unknown}"
-    if args.steps < 1 or args.scenes < 1 or args.envs < 1 or args.eval_scenes < 0:
-        return "--steps, --scenes and --envs must be >= 1, --eval-scenes >= 0"
     if not args.train_cap >= 0:
         return f"--train-cap must be >= 0 (0: only the 200 s cap), got {args.train_cap}"
     return None
