@@ -15,7 +15,11 @@ the route. The distance is the tolerance: a car that cuts a corner, or that SUMO
 onto a cross street's lane at a junction's edge, stays within a few metres of its route;
 one that took a wrong turn is 5 m clear of its route after ~5-16 m on the wrong road
 (5 m straight out of a junction, ~16 m on an 18 degree fork). No time grace beyond that:
-the distance already is one. A lane SUMO cannot name (None) changes nothing.
+the distance already is one. A lane SUMO cannot name (None), or a lane on the route, counts
+as on the route up to ``OFF_NETWORK_M`` from every lane of it: beyond, the ego is off its
+route whatever lane SUMO names (SUMO keeps naming the last lane of a car moved off the
+network: rab 10089 "drive aggressively", a training seed, left the ring off its exit arm
+and drove on beyond the network for 165 s on the route's junction lane ``:R1_2_0``).
 
 Plain Python + numpy: no SUMO call here (the bridge passes the lane SUMO reported).
 """
@@ -28,6 +32,9 @@ import numpy as np
 
 OFF_ROUTE_DIST_M = 5.0
 """Centre distance to every lane on the route beyond which a non-route lane is off-route."""
+OFF_NETWORK_M = 15.0
+"""Centre distance to every lane on the route beyond which the ego is off-route whatever
+lane SUMO names (three lane widths past the tolerance: no cut corner gets there)."""
 
 
 @dataclass(frozen=True)
@@ -36,10 +43,12 @@ class OffRoute:
 
     lane_id: str
     dist_m: float
+    limit_m: float = OFF_ROUTE_DIST_M
+    """The tolerance it passed (``OFF_NETWORK_M`` when SUMO still names a route lane)."""
 
     def detail(self) -> str:
         return (f"left its route: on lane {self.lane_id!r}, {self.dist_m:.1f} m from the "
-                f"nearest lane of its route (tolerance {OFF_ROUTE_DIST_M:.0f} m)")
+                f"nearest lane of its route (tolerance {self.limit_m:.0f} m)")
 
 
 class RouteWatch:
@@ -98,9 +107,8 @@ class RouteWatch:
 
     def check(self, lane_id: Optional[str], x_m: float, y_m: float) -> Optional[OffRoute]:
         """``OffRoute`` when the ego at (x, y) on ``lane_id`` has left its route, else None."""
-        if self.on_route_lane(lane_id):
-            return None
         dist = self.distance_m(x_m, y_m)
-        if dist <= OFF_ROUTE_DIST_M:
+        limit = OFF_NETWORK_M if self.on_route_lane(lane_id) else OFF_ROUTE_DIST_M
+        if dist <= limit:
             return None
-        return OffRoute(lane_id=str(lane_id), dist_m=dist)
+        return OffRoute(lane_id=str(lane_id), dist_m=dist, limit_m=limit)
