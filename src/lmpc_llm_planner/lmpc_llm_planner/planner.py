@@ -242,7 +242,6 @@ class PlannerCore:
         self._revisit_s: Optional[float] = None
         self._n = 0
         self._ahead_s = 0.0
-        self._latency_estimate: Optional[float] = None
         self._recent_latency: dict[str, deque[float]] = {
             "normal": deque(maxlen=5), "emergency": deque(maxlen=5)}
         path = log_path if log_path is not None else config.decision_log
@@ -317,7 +316,6 @@ class PlannerCore:
         self.counters.requests += 1
         try:
             ahead = self._ahead_s = self.expected_latency_s(mode)
-            self._latency_estimate = self.latency_estimate_s(mode)
             seen = obs if ahead <= 0.0 else predict_observation(
                 obs, ahead, lookahead_m=self.config.lookahead_m)
             scene = build_scene(
@@ -391,7 +389,7 @@ class PlannerCore:
                 scene, config=self.config, space=self.space, mode=mode, stage=stage,
                 instruction=self.instruction, previous=self.last_decision,
                 retry_error=retry_error, prior_stages=prior, command=self.command,
-                expected_latency_s=self._latency_estimate,
+                expected_latency_s=self.latency_estimate_s(mode),
             )
             self.counters.backend_calls += 1
             reply = _call_with_deadline(self.backend, request, self.config.deadline_s)

@@ -73,8 +73,8 @@ def rule_inputs(cfg: RulesConfig, request: DecisionRequest) -> RuleInputs:
     revisit, latency = cfg.ring_revisit_s, request.expected_latency_s
     # only a normal decision that comes back within the revisit (at most one in flight):
     # a slower one would act on a scene older than the revisit promises
-    soon = revisit is not None and latency is not None and latency <= revisit \
-        and request.mode == "normal"
+    react = revisit + latency if revisit is not None and latency is not None \
+        and latency <= revisit and request.mode == "normal" else None
     return RuleInputs(
         cfg=cfg, scene=request.scene, accel=accel, steer=request.steer_intervals_rad,
         intent=intent,
@@ -82,8 +82,8 @@ def rule_inputs(cfg: RulesConfig, request: DecisionRequest) -> RuleInputs:
         previous_go=prev is not None and prev.accel_bias_mps2 >= 0.0,
         previous_stop=prev is not None and prev.accel_bias_mps2 < lo_neutral,
         emergency=request.mode == "emergency",
-        ring_revisit_s=revisit if soon else None,
-        ring_react_s=revisit + latency if soon else None,  # type: ignore[operator]
+        ring_revisit_s=revisit if react is not None else None,
+        ring_react_s=react,
     )
 
 
