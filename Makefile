@@ -11,7 +11,7 @@ LLAMA_CMAKE_ARGS ?= -DGGML_NATIVE=OFF -DGGML_AVX2=ON -DGGML_FMA=ON -DGGML_F16C=O
 PKGS := src/lmpc_msgs_py src/lmpc_mpc src/lmpc_bridge src/lmpc_llm_planner
 SETUPS := pyproject.toml $(foreach p,$(PKGS),$(p)/setup.py)
 
-.PHONY: install demo test lint bench train clean
+.PHONY: install solvers demo test lint bench train clean
 
 install: $(STAMP)
 
@@ -25,12 +25,17 @@ $(STAMP): $(SETUPS)
 	CMAKE_ARGS="$(LLAMA_CMAKE_ARGS)" $(PY) -m pip install --quiet -e 'src/lmpc_llm_planner[local,server]'
 	@touch $@
 
-demo: install
+# The MPC's problems as generated C (lmpc_mpc.codegen: the same iterates, a faster solve),
+# compiled once into the solver cache (~1 min); a no-op while the cache has them.
+solvers: install
+	$(PY) -m lmpc_mpc.codegen
+
+demo: install solvers
 	$(PY) scripts/run_graph.py --scenario usi --seed 0 --planner rules --clock sync
 
 # The paper's Table I: 5 families x 25 seeds x every row, in-process, one worker per core.
 # dqn / ppo / sac / adp: the committed policies/*.npz (numpy only; docs/RL.md).
-bench: install
+bench: install solvers
 	$(PY) scripts/benchmark.py --families si,usi,lane,rab,eoa --seeds 0-24 \
 		--methods mpc,dqn,ppo,sac,adp,lmpc-rules --out runs/bench
 
@@ -51,7 +56,7 @@ lint: install
 	$(PY) -m flake8 src scripts test
 	$(PY) -m mypy
 
-test: install lint
+test: install solvers lint
 	$(PY) -m pytest
 
 clean:

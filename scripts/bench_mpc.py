@@ -4,6 +4,7 @@ attended agents and solver (FATROP, SQP-RTI and IPOPT in the same run, with rati
 first solver named; wall and process-CPU figures).
 
     bench_mpc.py --horizons 20 30 --agents 0 5 10 20 --solvers fatrop sqp_rti ipopt
+    bench_mpc.py --horizons 30 --agents 10 --solvers fatrop fatrop+c   # generated C
 """
 from __future__ import annotations
 

@@ -59,7 +59,11 @@ def run(*, n_agents: int = 10, steps: int = 100, solver: str = "fatrop",
     problems) is left out of the figures."""
     cfg = config or load_mpc_config()
     name, _, steps_text = solver.partition(":")
-    upd: dict[str, object] = {"solver": name, "time_budget_s": 10.0}
+    # "fatrop+c": the problem as generated C (lmpc_mpc.codegen; compiled on first use);
+    # without "+c" the interpreted functions, today's baseline, whatever the cache holds
+    name, generated = name.removesuffix("+c"), name.endswith("+c")
+    upd: dict[str, object] = {"solver": name, "time_budget_s": 10.0,
+                              "codegen": "build" if generated else "off"}
     if steps_text:
         # "sqp_rti:1": the RTI with at most this many Gauss-Newton steps per control step
         upd["rti_iterations"] = int(steps_text)
@@ -148,10 +152,12 @@ def _table(rows: dict[tuple[int, int, str], dict[str, float]], what: str) -> Non
 
 def _solver_arg(text: str) -> str:
     name, _, steps = text.partition(":")
+    name = name.removesuffix("+c")
     if name not in SOLVERS or (steps and (name != "sqp_rti" or not steps.isdigit()
                                           or int(steps) < 1)):
         raise argparse.ArgumentTypeError(
-            f"{text!r}: expected one of {', '.join(SOLVERS)} or sqp_rti:K (K >= 1)")
+            f"{text!r}: expected one of {', '.join(SOLVERS)} (+c: as generated C) or "
+            "sqp_rti:K (K >= 1)")
     return text
 
 
@@ -178,8 +184,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--agents", type=int_arg(0), nargs="+", default=[0, 5, 10, 20])
     ap.add_argument("--solvers", nargs="+", default=["fatrop", "sqp_rti", "ipopt"],
                     type=_solver_arg,
-                    help=f"any of {', '.join(SOLVERS)}; 'sqp_rti:K' caps the RTI at K "
-                         "Gauss-Newton steps per control step (config: rti_iterations)")
+                    help=f"any of {', '.join(SOLVERS)} (interpreted); with '+c' (e.g. "
+                         "fatrop+c) the NLP as generated C (lmpc_mpc.codegen, compiled on "
+                         "first use); 'sqp_rti:K' caps the RTI at K Gauss-Newton steps per "
+                         "control step (config: rti_iterations)")
     ap.add_argument("--steps", type=int_arg(1), default=100,
                     help="closed-loop steps per cell")
     ap.add_argument("--present", type=int_arg(0), default=20,

@@ -108,8 +108,11 @@ class MpcNode(LmpcNode):
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(TICK_S, self._tick, clock=steady)
         self.create_timer(1.0, self._diagnostics, clock=steady)
+        generated: set[int] = getattr(self.controller.solver, "generated_sizes", set)()
         self.get_logger().info(
-            f"mpc_controller up: solver {self.config.solver}, horizon {self.config.horizon}, "
+            f"mpc_controller up: solver {self.config.solver} ({len(generated)} of "
+            f"{len(self.config.agent_slot_sizes)} problem sizes as generated C), "
+            f"horizon {self.config.horizon}, "
             f"decision space {self.config.decision_space.describe()}; "
             f"waiting for {self.topic(topics.MAP)} and {self.topic(topics.EGO_STATE)} "
             "(no control is published before both arrive)")

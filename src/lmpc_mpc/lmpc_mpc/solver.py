@@ -55,7 +55,7 @@ from lmpc_mpc.config import MpcConfig
 from lmpc_mpc.model import (  # noqa: F401 (NREF, midpoint_step: re-exported)
     BIG, N_W, NOBS, NREF, NU, NX, CostParams, bicycle_function, box_bounds, midpoint_step,
     stage_symbols)
-from lmpc_mpc import solver_cache
+from lmpc_mpc import codegen, solver_cache
 from lmpc_mpc.rti import RtiQp
 _RELEVANCE_MARGIN_M = 6.0
 """An obstacle farther than this beyond ``d_hat`` from every guess of the ego at a stage
@@ -208,6 +208,8 @@ class MpcSolver:
         self.n = config.horizon
         self.dt_s = config.dt_s
         self._compiled: dict[int, _Compiled] = {}
+        self.generated: set[int] = set()
+        """Slot counts whose problem runs as generated C (:mod:`lmpc_mpc.codegen`)."""
         self._rti: dict[int, RtiQp] = {}
         self._fallback: Optional[MpcSolver] = None
         self.rti_fallbacks = 0
@@ -304,7 +306,9 @@ class MpcSolver:
         nlp = {"x": ca.vertcat(*w_vars), "p": p_all, "f": cost, "g": ca.vertcat(*g)}
         return nlp, lbx, ubx, lbg, ubg
 
-    def _build(self, n_slots: int) -> _Compiled:
+    def _build(self, n_slots: int, extra: Optional[dict[str, Any]] = None) -> _Compiled:
+        """Build the NLP of ``n_slots`` slots; ``extra``: more ``nlpsol`` options (the
+        generated-C ones of :mod:`lmpc_mpc.codegen`)."""
         n = self.n
         nlp, lbx, ubx, lbg, ubg = self._nlp(n_slots)
         p_all = nlp["p"]
@@ -339,7 +343,7 @@ class MpcSolver:
                 "print_time": False,
                 "error_on_fail": False,
             }
-        solver = ca.nlpsol("mpc", self.solver_name, nlp, opts)
+        solver = ca.nlpsol("mpc", self.solver_name, nlp, {**opts, **(extra or {})})
         return _Compiled(solver, n_slots, np.array(lbx), np.array(ubx), lbg_a, ubg_a,
                          int(p_all.numel()))
 
@@ -408,19 +412,45 @@ class MpcSolver:
             self._compiled[n_slots] = self._load_or_build(n_slots)
         return self._compiled[n_slots]
 
+    def generated_sizes(self) -> set[int]:
+        """Slot counts whose NLP runs as generated C (the hybrid's: its FATROP's)."""
+        return self._fallback.generated if self._fallback is not None else self.generated
+
     def _load_or_build(self, n_slots: int) -> _Compiled:
+        # the key holds what the problem is built from: not the codegen choice, and the time
+        # budget only for IPOPT (its max_wall_time); FATROP's problem is the same in realtime
         key = solver_cache.entry_key(
-            self.config.model_dump_json(), repr(self.vehicle), str(n_slots), self.solver_name,
-            str(self.enforce_time_budget))
+            self.config.model_dump_json(exclude={"codegen", "enforce_time_budget"}),
+            repr(self.vehicle), str(n_slots), self.solver_name,
+            str(self.enforce_time_budget and self.solver_name == "ipopt"))
+        if self.config.codegen != "off":
+            # the generated C gives the same iterates, so where it is missing the
+            # interpreted problem below is the same controller, only slower
+            gen_key = solver_cache.entry_key(key, codegen.TAG)
+            hit = solver_cache.load(gen_key)
+            if hit is None and self.config.codegen == "build":
+                hit = codegen.build_and_store(
+                    lambda opts: self._entry(self._build(n_slots, opts)), gen_key)
+            if hit is not None:
+                self.generated.add(n_slots)
+                return self._from_entry(hit, n_slots)
         hit = solver_cache.load(key)
         if hit is not None:
-            fn, a = hit
-            return _Compiled(fn, n_slots, a["lbx"], a["ubx"], a["lbg"], a["ubg"], int(a["n_p"]))
+            return self._from_entry(hit, n_slots)
         built = self._build(n_slots)
-        solver_cache.store(key, built.solver, {
-            "lbx": built.lbx, "ubx": built.ubx, "lbg": built.lbg, "ubg": built.ubg,
-            "n_p": np.array(built.n_p)})
+        solver_cache.store(key, *self._entry(built))
         return built
+
+    @staticmethod
+    def _entry(built: _Compiled) -> tuple[ca.Function, dict[str, np.ndarray]]:
+        return built.solver, {"lbx": built.lbx, "ubx": built.ubx, "lbg": built.lbg,
+                              "ubg": built.ubg, "n_p": np.array(built.n_p)}
+
+    @staticmethod
+    def _from_entry(entry: tuple[ca.Function, dict[str, np.ndarray]], n_slots: int
+                    ) -> _Compiled:
+        fn, a = entry
+        return _Compiled(fn, n_slots, a["lbx"], a["ubx"], a["lbg"], a["ubg"], int(a["n_p"]))
 
     def reset(self) -> None:
         """Forget the warm start (e.g. after a teleport or a new episode): the next solve is
