@@ -335,10 +335,11 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
                          "subscribe to the ego state once it hears the topics it watches)")
     ap.add_argument("--quiet", action="store_true", help="do not echo node logs")
     ap.add_argument("--rt-priority", type=int_in(0, 99), default=0, metavar="N",
-                    help="run the 10 Hz loop (bridge, MPC and, except with --planner local, "
-                         "the planner) with SCHED_FIFO priority N (1-99; needs CAP_SYS_NICE, "
-                         "else they say so and run normally; default 0: off). Keeps the "
-                         "control cycle on time next to CPU-heavy jobs (docs/RESULTS.md)")
+                    help="run the 10 Hz loop with SCHED_FIFO: bridge and MPC at priority N, "
+                         "the planner (not with --planner local) at N-1 (1-99; needs "
+                         "CAP_SYS_NICE, else they say so and run normally; default 0: off). "
+                         "Keeps the control cycle on time next to CPU-heavy jobs "
+                         "(docs/RESULTS.md)")
     ap.add_argument("--profile", action="store_true",
                     help="print where the time of a step goes (per node and stage; always in "
                          "the summary JSON as 'profile_ms')")
@@ -506,8 +507,8 @@ def run(args: argparse.Namespace, stops: Optional[StopSignals] = None) -> dict[s
                 cpu_set = {cpus[-1]}
             elif split and name == "mpc":
                 cpu_set = set(cpus[:-1])
-            env = {"LMPC_RT_PRIORITY": str(args.rt_priority)} \
-                if args.rt_priority and name in rt_nodes(args) else None  # scheduling.py
+            priority = rt_nodes(args).get(name)
+            env = {"LMPC_RT_PRIORITY": str(priority)} if priority else None  # scheduling.py
             child = graph.start_node(name, NODE_MODULES[name], params[name], cpus=cpu_set,
                                      env=env)
             if args.instruction and name in ("planner", "mock_llm"):
@@ -567,13 +568,20 @@ def _run_multi(args: argparse.Namespace, stops: StopSignals, run_dir: Path,
     return _write_summary(summary, run_dir, args)
 
 
-def rt_nodes(args: argparse.Namespace) -> tuple[str, ...]:
-    """The nodes ``--rt-priority`` applies to: the bridge and the MPC, and the planner
-    (the bridge waits for its status every step) unless it runs the embedded LLM, which
-    would keep its core busy for seconds at real-time priority."""
-    if args.planner == "local":
-        return ("bridge", "mpc")
-    return ("bridge", "mpc", "planner", "mock_llm")
+def rt_nodes(args: argparse.Namespace) -> dict[str, int]:
+    """Node -> real-time priority under ``--rt-priority N`` (none without it): N for the
+    bridge and the MPC; N - 1 for the planner (the bridge waits for its status every
+    step, so it must not fall behind a benchmark worker, but its decision steps take up
+    to ~20 ms on a city map and must not hold a core the MPC needs: the MPC preempts
+    it); none for the embedded LLM's planner, which would keep its core busy for
+    seconds at real-time priority."""
+    n = args.rt_priority
+    if not n:
+        return {}
+    out = {"bridge": n, "mpc": n}
+    if args.planner != "local" and n > 1:
+        out.update(planner=n - 1, mock_llm=n - 1)
+    return out
 
 
 def _signal_names(stops: StopSignals) -> str:
@@ -704,6 +712,7 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
         "late_controls": episode.get("late_controls", 0),
         "mpc_solve_ms": episode.get("mpc_solve_ms", {}),
         "control_latency_ms": episode.get("control_latency_ms", {}),
+        "mpc_attended_agents": episode.get("mpc_attended_agents", {}),
         **wall_split(episode, getattr(args, "start_epoch_s", None)),
         "profile_ms": read_profiles(run_dir, episode),
         "metrics": metrics,
@@ -776,7 +785,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         f"run_dir={summary['run_dir']}")
     _say(f"[run_graph] startup_wall={summary.get('startup_wall_s')}s "
          f"episode_wall={summary.get('episode_wall_s')}s "
-         f"episode_rtf={summary.get('episode_real_time_factor')}")
+         f"episode_rtf={summary.get('episode_real_time_factor')} "
+         f"attended_agents={summary.get('mpc_attended_agents')}")
     if args.profile and summary.get("profile_ms"):
         _say(profile_table(summary["profile_ms"]))  # type: ignore[arg-type]
     if summary["detail"]:

@@ -73,6 +73,8 @@ def test_usi_reaches_target_without_collision(
         assert s["decisions"] == 0
     for key in ("mpc_solve_ms", "control_latency_ms"):
         assert s[key]["median"] is not None and s[key]["p99"] >= s[key]["median"]
+    # the cars of usi 0 reach the MPC's problem (Control.attended, counted by the bridge)
+    assert 1 <= s["mpc_attended_agents"]["max"] <= 20
     _check_profile(s, planner)
 
     # The graph in sync mode and the in-process benchmark run the same logic.

@@ -115,6 +115,7 @@ class _StepTiming:
 class _RunStats:
     decisions: dict[str, str] = field(default_factory=dict)  # id -> source
     solve_ms: list[float] = field(default_factory=list)
+    attended: list[float] = field(default_factory=list)  # agents in the MPC's problem
     late_controls: int = 0
     control_modes: dict[str, int] = field(default_factory=dict)
 
@@ -150,6 +151,7 @@ class EgoInputs:
             self.stats.late_controls += 1
         else:
             self.stats.solve_ms.append(control.solve_time_ms)
+            self.stats.attended.append(float(len(control.attended)))
             modes = self.stats.control_modes
             modes[control.mode] = modes.get(control.mode, 0) + 1
         timing = self.timing.pop(k, None)
@@ -532,6 +534,7 @@ class BridgeNode(BridgeBase):
             "shadows": record.shadows,
             "control_modes": self.inputs.stats.control_modes,
             "mpc_solve_ms": _percentiles(self.inputs.stats.solve_ms),
+            "mpc_attended_agents": _percentiles(self.inputs.stats.attended),
             "control_latency_ms": _wait_percentiles(self.stage_times.summary()),
             "dropped_messages": self.counters.get("dropped_messages", 0),
             "step0_epoch_s": self.step0_epoch_s,

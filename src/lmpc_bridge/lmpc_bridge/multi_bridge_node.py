@@ -281,6 +281,7 @@ class MultiBridgeNode(BridgeBase):
                 "late_controls": ego.stats.late_controls,
                 "control_modes": ego.stats.control_modes,
                 "mpc_solve_ms": _percentiles(ego.stats.solve_ms),
+                "mpc_attended_agents": _percentiles(ego.stats.attended),
                 "control_latency_ms": {k: None if wait is None else wait[k]
                                        for k in ("median", "p99", "max")},
             }

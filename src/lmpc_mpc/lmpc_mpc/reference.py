@@ -252,6 +252,26 @@ class _MapIndex:
     by_edge: dict[str, list[Lane]] = field(default_factory=dict)
     route: Optional[RoutePath] = None
 
+    @cached_property
+    def _reach_boxes(self) -> tuple[list[str], np.ndarray]:
+        """Per lane (in ``lines`` order) its centreline's bounding box grown by the
+        distance at which :func:`_locate` still takes the lane (half its width + 2 m, and
+        1 mm against rounding): a point outside is farther than that from the lane."""
+        ids = list(self.lines)
+        boxes = np.empty((len(ids), 4))
+        for i, lid in enumerate(ids):
+            pts, reach = self.lines[lid].pts, self.lanes[lid].width_m * 0.5 + 2.0 + 1e-3
+            boxes[i, :2] = pts.min(axis=0) - reach
+            boxes[i, 2:] = pts.max(axis=0) + reach
+        return ids, boxes
+
+    def lanes_near(self, x_m: float, y_m: float) -> list[str]:
+        """The lanes :func:`_locate` may take at (x, y), in ``lines`` order: a city map
+        has hundreds of lanes, and projecting onto each took ~1.7 ms a call."""
+        ids, b = self._reach_boxes
+        inside = (b[:, 0] <= x_m) & (x_m <= b[:, 2]) & (b[:, 1] <= y_m) & (y_m <= b[:, 3])
+        return [ids[i] for i in np.flatnonzero(inside)]
+
 
 _CACHE: "OrderedDict[tuple[int, int, float], tuple[MapSnapshot, _MapIndex]]" = OrderedDict()
 
@@ -454,8 +474,8 @@ def _locate(idx: _MapIndex, x_m: float, y_m: float, yaw_rad: float,
         s, _, _ = idx.lines[lane_id].project(x_m, y_m)
         return lane_id, s
     best: Optional[tuple[float, str, float]] = None
-    for lid, line in idx.lines.items():
-        s, dist, heading = line.project(x_m, y_m)
+    for lid in idx.lanes_near(x_m, y_m):
+        s, dist, heading = idx.lines[lid].project(x_m, y_m)
         off = abs(_wrap(heading - yaw_rad))
         if off > MAX_HEADING_OFF_RAD or dist > idx.lanes[lid].width_m * 0.5 + 2.0:
             continue

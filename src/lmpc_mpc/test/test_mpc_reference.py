@@ -163,3 +163,36 @@ def test_the_hot_path_gradient_is_numpys_to_the_last_bit() -> None:
                                   np.gradient(np.gradient(f, ds, axis=0), ds, axis=0))
     with pytest.raises(ValueError, match="two samples"):
         _gradient(np.zeros((1, 2)), 0.1)
+
+
+def test_the_lane_lookup_near_a_point_finds_what_scanning_every_lane_finds() -> None:
+    """``_locate`` projects only onto the lanes whose grown bounding box holds the point
+    (a city map has hundreds): the same lane and arc length as projecting onto all."""
+    from lmpc_mpc.reference import MAX_HEADING_OFF_RAD, _index, _locate, _wrap
+
+    def scan_all(idx, x: float, y: float, yaw: float):  # the lookup before the boxes
+        best = None
+        for lid, line in idx.lines.items():
+            s, dist, heading = line.project(x, y)
+            off = abs(_wrap(heading - yaw))
+            if off > MAX_HEADING_OFF_RAD or dist > idx.lanes[lid].width_m * 0.5 + 2.0:
+                continue
+            if best is None or dist + 2.0 * off < best[0]:
+                best = (dist + 2.0 * off, lid, s)
+        return None if best is None else (best[1], best[2])
+
+    rng = np.random.default_rng(5)
+    found = 0
+    for m in (S.four_way_junction(), S.roundabout_entry(), S.straight_road()):
+        idx = _index(m)
+        lines = list(idx.lines.values())
+        for _ in range(400):  # near a lane (within ~3 m, sometimes beyond its reach)
+            pts = lines[rng.integers(len(lines))].pts
+            i = int(rng.integers(len(pts) - 1))
+            x, y = pts[i] + rng.normal(0.0, 3.0, size=2)
+            d = pts[i + 1] - pts[i]
+            yaw = math.atan2(d[1], d[0]) + rng.normal(0.0, 0.5)
+            got = _locate(idx, float(x), float(y), float(yaw), None)
+            assert got == scan_all(idx, float(x), float(y), float(yaw))
+            found += got is not None
+    assert 600 < found < 1200  # most points were on a lane, some on none
