@@ -23,7 +23,9 @@ backends.
 """
 from __future__ import annotations
 
+import copy
 import json
+from functools import lru_cache
 from typing import Annotated, Any, Literal, Mapping, Optional
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -120,8 +122,15 @@ def wire_model_for(*, mode: str, stage: Stage) -> WireModel:
 
 
 def decision_json_schema(*, mode: str = "normal", stage: Stage = "all") -> dict[str, Any]:
-    """JSON schema of the expected reply (for structured-output and grammar backends)."""
-    return wire_model_for(mode=mode, stage=stage).model_json_schema()
+    """JSON schema of the expected reply (for structured-output and grammar backends).
+    A fresh copy of a schema made once per model: pydantic takes ~2 ms to make one, and
+    every decision needed two (its request and its prompt's outline)."""
+    return copy.deepcopy(_wire_schema(wire_model_for(mode=mode, stage=stage)))
+
+
+@lru_cache(maxsize=None)
+def _wire_schema(model: WireModel) -> dict[str, Any]:
+    return model.model_json_schema()
 
 
 def describe_schema(schema: Mapping[str, Any], defs: Optional[Mapping[str, Any]] = None, *,
