@@ -1,6 +1,7 @@
 """Keeping the 10 Hz loop on time on a busy machine: real-time priority for a node.
 
-``run_graph.py --rt-priority N`` starts the bridge and the MPC with ``LMPC_RT_PRIORITY=N``;
+``run_graph.py --rt-priority N`` starts the bridge and the MPC with ``LMPC_RT_PRIORITY=N``
+and the planner (not the embedded LLM's) with N-1, so the MPC preempts its decision steps;
 :func:`apply_priority_from_env` (called by ``run_node`` before ``rclpy.init``, so every
 DDS thread the node starts inherits it) switches the process to ``SCHED_FIFO`` at
 priority N. A FIFO thread runs as soon as it is ready and keeps the core until it waits
