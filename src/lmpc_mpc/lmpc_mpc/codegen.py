@@ -16,8 +16,8 @@ is made and used:
 
 - ``auto`` (default): use a compiled entry when the cache has one, else the interpreted
   functions (built or loaded as before). ``python -m lmpc_mpc.codegen`` makes the entries of
-  the packaged config (``make install`` / ``make bench`` / ``make demo`` run it: a no-op when
-  they exist);
+  the packaged config (``make solvers``, which ``make demo`` / ``test`` / ``bench`` run: a
+  no-op when they exist);
 - ``build``: compile a missing entry on first use;
 - ``off``: never (the interpreted functions).
 

@@ -65,9 +65,9 @@ class MpcConfig(BaseModel):
     codegen: Literal["auto", "build", "off"] = "auto"
     """The NLP's functions as generated C (``lmpc_mpc.codegen``; the same iterates to the
     bit, FATROP ~15 % faster): ``auto`` uses a compiled problem the solver cache holds
-    (``python -m lmpc_mpc.codegen`` makes them; ``make install`` runs it) and the
-    interpreted one otherwise; ``build`` compiles a missing one on first use (2-15 s a
-    problem size); ``off`` never."""
+    (``python -m lmpc_mpc.codegen`` makes them; ``make demo`` / ``test`` / ``bench`` run
+    it) and the interpreted one otherwise; ``build`` compiles a missing one on first use
+    (2-15 s a problem size); ``off`` never."""
     rti_iterations: int = Field(1, ge=1, le=50)
     """``sqp_rti``: at most this many Gauss-Newton SQP steps per control step from a warm
     start. The first step is always taken; another only while the last one moved a
