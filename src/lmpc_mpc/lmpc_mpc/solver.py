@@ -208,7 +208,7 @@ class MpcSolver:
         self.n = config.horizon
         self.dt_s = config.dt_s
         self._compiled: dict[int, _Compiled] = {}
-        self.generated: set[int] = set()
+        self._generated: set[int] = set()
         """Slot counts whose problem runs as generated C (:mod:`lmpc_mpc.codegen`)."""
         self._rti: dict[int, RtiQp] = {}
         self._fallback: Optional[MpcSolver] = None
@@ -414,7 +414,7 @@ class MpcSolver:
 
     def generated_sizes(self) -> set[int]:
         """Slot counts whose NLP runs as generated C (the hybrid's: its FATROP's)."""
-        return self._fallback.generated if self._fallback is not None else self.generated
+        return self._fallback._generated if self._fallback is not None else self._generated
 
     def _load_or_build(self, n_slots: int) -> _Compiled:
         # the key holds what the problem is built from: not the codegen choice, and the time
@@ -432,7 +432,7 @@ class MpcSolver:
                 hit = codegen.build_and_store(
                     lambda opts: self._entry(self._build(n_slots, opts)), gen_key)
             if hit is not None:
-                self.generated.add(n_slots)
+                self._generated.add(n_slots)
                 return self._from_entry(hit, n_slots)
         hit = solver_cache.load(key)
         if hit is not None:

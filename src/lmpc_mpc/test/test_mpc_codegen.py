@@ -33,7 +33,7 @@ def _run(mode: str) -> tuple[np.ndarray, set[int]]:
     solver = MpcSolver(cfg)
     controls, states = S.follow_lead_car(MpcController(cfg, solver=solver), 30, cfg.dt_s)
     assert states[-1][3] < 9.5  # it slowed behind the lead: the solver did real work
-    return np.array([u + x for u, x in zip(controls, states)]), solver.generated
+    return np.array([u + x for u, x in zip(controls, states)]), solver.generated_sizes()
 
 
 def test_generated_c_drives_exactly_like_the_interpreted_problem(cache: Path) -> None:
@@ -57,7 +57,7 @@ def test_the_command_compiles_every_size_of_a_config(
     cfg = load_mpc_config(cfg_file)
     solver = MpcSolver(cfg)  # auto: both from the cache, nothing compiled now
     solver.warm_up()
-    assert solver.generated == {0, 2}
+    assert solver.generated_sizes() == {0, 2}
 
 
 def test_a_failed_compile_leaves_the_interpreted_problem(
@@ -66,7 +66,7 @@ def test_a_failed_compile_leaves_the_interpreted_problem(
     monkeypatch.setattr(codegen, "FLAGS", ("--no-such-flag",))
     solver = MpcSolver(CFG.model_copy(update={"codegen": "build", "horizon": 10}))
     assert solver.compiled(2).solver.name() == "mpc"
-    assert solver.generated == set()
+    assert solver.generated_sizes() == set()
     assert "compiling the MPC's functions failed" in caplog.text
 
 
