@@ -516,7 +516,7 @@ def test_standing_agent_beside_the_path_gets_no_headway(solver: MpcSolver) -> No
 def test_beside_obstacle_has_no_headway_in_the_safety_zone(solver: MpcSolver) -> None:
     from dataclasses import replace
 
-    from lmpc_mpc.solver import Obstacle
+    from lmpc_mpc.obstacles import Obstacle, obstacle_rows
 
     n = CFG.horizon
     ob = Obstacle("car", np.tile([20.0, 3.2], (n + 1, 1)), 4.5, 1.8)
@@ -525,7 +525,8 @@ def test_beside_obstacle_has_no_headway_in_the_safety_zone(solver: MpcSolver) ->
     yaw = np.zeros(n + 1)
     for flag, want in ((False, CFG.safety_headway_s), (True, 0.0)):
         prob = _headway_problem(replace(ob, beside=flag), ref)
-        rows = solver._obstacle_rows(prob, ref, yaw)
+        rows = obstacle_rows(prob.obstacles, ref, yaw, config=solver.config,
+                             vehicle=solver.vehicle)
         assert rows[0, 0, 3] == pytest.approx(want)
 
 

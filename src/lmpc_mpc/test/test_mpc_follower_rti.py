@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from lmpc_mpc.config import MpcConfigError, SOLVER_ENV, load_mpc_config
+from lmpc_mpc.obstacles import obstacle_rows
 from lmpc_mpc.solver import MpcProblem, MpcSolver, Obstacle, simulate_bicycle
 
 CFG = load_mpc_config().model_copy(update={"solver": "fatrop"})
@@ -77,7 +78,7 @@ def test_only_in_lane_followers_going_our_way_are_left_out() -> None:
         _car("merging", x_m=-12.0, y_m=-3.2, vx_mps=12.0, vy_mps=0.5),
         _car("standing_behind", x_m=-10.0, y_m=0.0, vx_mps=0.0)))
     ref = np.asarray(prob.reference)
-    rows = mpc._obstacle_rows(prob, ref, ref[:, 2])
+    rows = obstacle_rows(prob.obstacles, ref, ref[:, 2], config=mpc.config, vehicle=mpc.vehicle)
     assert rows is not None
     on = rows[:, :, 5]
     assert not on[0].any()  # follower: never

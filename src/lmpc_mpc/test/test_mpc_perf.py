@@ -7,6 +7,7 @@ import pytest
 from lmpc_mpc import synthetic as S
 from lmpc_mpc.config import load_mpc_config
 from lmpc_mpc.reference import _Polyline, braking_envelope, timed_reference
+from lmpc_mpc.obstacles import halfplanes
 from lmpc_mpc.solver import NOBS, MpcProblem, MpcSolver, Obstacle
 
 CFG = load_mpc_config()
@@ -51,7 +52,7 @@ def test_timed_reference_stops_at_the_stop_point() -> None:
     assert np.all(np.diff(ref.states[:, 3]) <= 1e-9)  # only braking from the limit
 
 
-def test_halfplane_is_a_tangent_lower_bound_of_the_stretched_distance(solver) -> None:
+def test_halfplane_is_a_tangent_lower_bound_of_the_stretched_distance() -> None:
     rng = np.random.default_rng(5)
     n = CFG.horizon
     yaw = rng.uniform(-math.pi, math.pi, n + 1)
@@ -59,7 +60,7 @@ def test_halfplane_is_a_tangent_lower_bound_of_the_stretched_distance(solver) ->
     rows[0, :, 0:2] = rng.normal(size=(n + 1, 2)) * 10.0
     rows[0, :, 4] = rng.uniform(1.0, 6.0, n + 1)  # rho
     at = rows[0, :, 0:2] + rng.normal(size=(n + 1, 2)) * 5.0
-    hp = solver._halfplanes(rows, at[None], yaw)[0]
+    hp = halfplanes(rows, at[None], yaw)[0]
 
     def stretched(p: np.ndarray) -> np.ndarray:
         dx, dy = p[:, 0] - rows[0, :, 0], p[:, 1] - rows[0, :, 1]
