@@ -12,6 +12,7 @@ from typing import Optional
 
 from lmpc_msgs_py.messages import AgentArray, EgoState, MapSnapshot, SignalStates
 from lmpc_msgs_py.observation import Observation
+from lmpc_mpc.reference import index_map
 
 KEEP_STAMPS = 20
 STAMP_EPS_S = 1e-6
@@ -34,6 +35,7 @@ class ObservationAssembler:
     def on_map(self, msg: MapSnapshot) -> None:
         if self.map is None or msg.version >= self.map.version or msg.stamp_s < self.map.stamp_s:
             self.map = msg
+            index_map(msg)  # the map lookups now, not in the first decision (city: ~10 ms)
 
     def on_agents(self, msg: AgentArray) -> None:
         self._agents[_key(msg.stamp_s)] = msg

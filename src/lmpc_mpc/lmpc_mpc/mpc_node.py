@@ -29,6 +29,7 @@ from lmpc_msgs_py.observation import Observation
 from lmpc_mpc.config import MpcConfigError, load_mpc_config
 from lmpc_mpc.controller import MpcController
 from lmpc_mpc.mirrors import MirrorLine, agent_lines, candidate_lines
+from lmpc_mpc.reference import index_map
 
 PAIR_WAIT_S = 0.2
 """Wall time to wait for agents / signals of the ego state's stamp before using the newest."""
@@ -120,6 +121,8 @@ class MpcNode(LmpcNode):
     # -- inputs --------------------------------------------------------------------------
     def _on_map(self, msg: MapSnapshot) -> None:
         self._map = msg
+        with self.stage_times.stage("map lookups (once per map)"):
+            index_map(msg)  # not in the first control step (~10 ms on a city map)
 
     def _on_ego(self, msg: EgoState) -> None:
         # a new ego state is the simulation advancing too (DDS does not order it
