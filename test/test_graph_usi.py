@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -100,3 +101,31 @@ def _check_profile(s: dict[str, Any], planner: str) -> None:
     assert prof["mpc"]["mirrors (paths, markers)"]["median"] < 1.0
     if planner == "rules":
         assert prof["planner"]["decide (core, backend)"]["n"] >= steps
+
+
+def test_the_events_executor_runs_the_same_episode(
+    tmp_path: Path, domain_id: int, in_process: dict[tuple[str, int], dict[str, Any]],
+) -> None:
+    """``--executor events`` (rclpy's EventsExecutor, spun by spin_once; its spin() never
+    fired the bridge's timers in these wheels): every node runs under it and the episode
+    is the benchmark's, as with the default executor."""
+    run = run_graph(tmp_path, domain_id, "--scenario", "usi", "--seed", "0", "--planner",
+                    "rules", "--clock", "sync", "--executor", "events", "--quiet")
+    s = run.summary
+    assert s["outcome"] == "reached", f"{s['outcome']}: {s['detail']}\n{run.output[-3000:]}"
+    assert run.returncode == 0 and s["executor"] == "events"
+    assert s["late_controls"] == 0 and s["collisions"] == 0
+    assert all(n["exit_code"] == 0 and n["tracebacks"] == 0 for n in s["nodes"].values())
+    for name in ("bridge", "mpc", "planner"):
+        log = (tmp_path / "run" / f"{name}.log").read_text()
+        assert "executor: events" in log, name
+    row = in_process[("lmpc-rules", 0)]
+    assert float(row["overall_cost"]) == pytest.approx(s["metrics"]["overall_cost"], rel=0.02)
+
+
+def test_an_unknown_executor_is_refused_with_its_name(tmp_path: Path, domain_id: int) -> None:
+    env = dict(os.environ, LMPC_EXECUTOR="multi")
+    proc = subprocess.run([sys.executable, "-m", "lmpc_mpc.mpc_node"], env=env, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert "LMPC_EXECUTOR='multi' is not an executor: use one of single, events" in proc.stderr

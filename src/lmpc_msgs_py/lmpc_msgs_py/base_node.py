@@ -46,6 +46,16 @@ BRIDGE_GONE_EXIT_S = 10.0
 node publishes ``/clock`` any more, before it ends its process (parameter
 ``bridge_gone_exit_s``; 0 = wait forever). Long enough for a bridge restarted by hand."""
 
+EXECUTOR_ENV = "LMPC_EXECUTOR"
+EXECUTORS = ("single", "events")
+"""How :func:`run_node` spins a node (environment ``LMPC_EXECUTOR``; ``run_graph.py
+--executor``): ``single``, rclpy's single-threaded executor (``rclpy.spin``); ``events``,
+``rclpy.experimental.EventsExecutor`` (a step of the sync graph ~0.6 ms shorter,
+docs/RESULTS.md). Not the multi-threaded executor: it is slow in these wheels (README)."""
+DEFAULT_EXECUTOR = "single"
+EVENTS_SPIN_TIMEOUT_S = 0.5
+"""The EventsExecutor is spun by ``spin_once`` with this timeout, never by its ``spin()``."""
+
 
 class JsonPublisher(Generic[M]):
     """Publishes schema messages as JSON text on a ``std_msgs/String`` topic."""
@@ -272,6 +282,11 @@ def run_node(factory: Callable[[], Node], args: Optional[list[str]] = None) -> i
     """
     follow_supervisor()  # before the slow parts: a dead launcher must not leave us behind
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    executor = os.environ.get(EXECUTOR_ENV, "").strip() or DEFAULT_EXECUTOR
+    if executor not in EXECUTORS:
+        print(f"{EXECUTOR_ENV}={executor!r} is not an executor: use one of "
+              f"{', '.join(EXECUTORS)}", file=sys.stderr, flush=True)
+        return 2
     priority = apply_priority_from_env()  # before rclpy.init: DDS threads inherit it
     rclpy.init(args=args if args is not None else sys.argv)
     node: Optional[Node] = None
@@ -280,7 +295,9 @@ def run_node(factory: Callable[[], Node], args: Optional[list[str]] = None) -> i
         node = factory()
         if priority is not None:
             node.get_logger().info(f"scheduling: {priority}")
-        rclpy.spin(node)
+        if executor != DEFAULT_EXECUTOR:
+            node.get_logger().info(f"executor: {executor}")
+        _spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RCLError:
@@ -302,3 +319,19 @@ def run_node(factory: Callable[[], Node], args: Optional[list[str]] = None) -> i
             node.destroy_node()
         rclpy.try_shutdown()
     return code
+
+
+def _spin(node: Node, executor: str) -> None:
+    """Spin ``node`` until rclpy shuts down, with the executor named (``EXECUTORS``)."""
+    if executor == "single":
+        rclpy.spin(node)
+        return
+    from rclpy.experimental import EventsExecutor
+
+    events = EventsExecutor(context=node.context)
+    events.add_node(node)
+    # spin_once in a loop, not events.spin(): in the rclpy 7.1.6 wheels spin() ran at 100 %
+    # CPU without ever firing the node's timers (the bridge never started) and did not
+    # end on SIGTERM (2026-12-06); spin_once fires them and sleeps while idle
+    while rclpy.ok(context=node.context):
+        events.spin_once(timeout_sec=EVENTS_SPIN_TIMEOUT_S)
