@@ -35,6 +35,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, Optional, Sequence
 
+from lmpc_msgs_py.scheduling import DEFAULT_EXECUTOR, EXECUTOR_ENV, EXECUTORS
+
 if __package__:  # lmpc_scripts.run_graph
     from . import graph_multi
     from .node_logs import first_error_line, log_lines, stopped_early
@@ -340,10 +342,11 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
                          "CAP_SYS_NICE, else they say so and run normally; default 0: off). "
                          "Keeps the control cycle on time next to CPU-heavy jobs "
                          "(docs/RESULTS.md)")
-    ap.add_argument("--executor", choices=("single", "events"), default=None,
-                    help="how every node spins: single (rclpy's single-threaded executor, the "
-                         "default) or events (rclpy.experimental.EventsExecutor: a sync step "
-                         "~0.6 ms shorter, docs/RESULTS.md); default: $LMPC_EXECUTOR or single")
+    ap.add_argument("--executor", choices=EXECUTORS, default=None,
+                    help="how every node spins: events (rclpy.experimental.EventsExecutor, "
+                         "the default: a sync step ~0.6 ms shorter, docs/RESULTS.md) or single "
+                         "(rclpy's single-threaded executor); default: $LMPC_EXECUTOR or "
+                         f"{DEFAULT_EXECUTOR}")
     ap.add_argument("--profile", action="store_true",
                     help="print where the time of a step goes (per node and stage; always in "
                          "the summary JSON as 'profile_ms')")
@@ -514,7 +517,7 @@ def run(args: argparse.Namespace, stops: Optional[StopSignals] = None) -> dict[s
             priority = rt_nodes(args).get(name)
             env = {"LMPC_RT_PRIORITY": str(priority)} if priority else {}  # scheduling.py
             if args.executor:
-                env["LMPC_EXECUTOR"] = args.executor  # base_node.run_node
+                env[EXECUTOR_ENV] = args.executor  # base_node.run_node
             child = graph.start_node(name, NODE_MODULES[name], params[name], cpus=cpu_set,
                                      env=env)
             if args.instruction and name in ("planner", "mock_llm"):
@@ -704,7 +707,7 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
         "planner": args.planner,
         "instruction": args.instruction,
         "clock": args.clock,
-        "executor": args.executor or os.environ.get("LMPC_EXECUTOR") or "single",
+        "executor": args.executor or os.environ.get(EXECUTOR_ENV) or DEFAULT_EXECUTOR,
         "decision_latency_s": args.decision_latency,
         "emergency_latency_s": effective_emergency_latency(args),
         "planning_period_s": args.planning_period,

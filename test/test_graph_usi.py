@@ -103,22 +103,22 @@ def _check_profile(s: dict[str, Any], planner: str) -> None:
         assert prof["planner"]["decide (core, backend)"]["n"] >= steps
 
 
-def test_the_events_executor_runs_the_same_episode(
+def test_the_single_threaded_executor_runs_the_same_episode(
     tmp_path: Path, domain_id: int, in_process: dict[tuple[str, int], dict[str, Any]],
 ) -> None:
-    """``--executor events`` (rclpy's EventsExecutor, spun by spin_once; its spin() never
-    fired the bridge's timers in these wheels): every node runs under it and the episode
-    is the benchmark's, as with the default executor."""
+    """``--executor single`` (rclpy's single-threaded executor, the default until the
+    EventsExecutor took over): every node runs under it and the episode is the
+    benchmark's, as with the default executor (the tests above)."""
     run = run_graph(tmp_path, domain_id, "--scenario", "usi", "--seed", "0", "--planner",
-                    "rules", "--clock", "sync", "--executor", "events", "--quiet")
+                    "rules", "--clock", "sync", "--executor", "single", "--quiet")
     s = run.summary
     assert s["outcome"] == "reached", f"{s['outcome']}: {s['detail']}\n{run.output[-3000:]}"
-    assert run.returncode == 0 and s["executor"] == "events"
+    assert run.returncode == 0 and s["executor"] == "single"
     assert s["late_controls"] == 0 and s["collisions"] == 0
     assert all(n["exit_code"] == 0 and n["tracebacks"] == 0 for n in s["nodes"].values())
     for name in ("bridge", "mpc", "planner"):
         log = (tmp_path / "run" / f"{name}.log").read_text()
-        assert "executor: events" in log, name
+        assert "executor: single" in log, name
     row = in_process[("lmpc-rules", 0)]
     assert float(row["overall_cost"]) == pytest.approx(s["metrics"]["overall_cost"], rel=0.02)
 
@@ -128,4 +128,4 @@ def test_an_unknown_executor_is_refused_with_its_name(tmp_path: Path, domain_id:
     proc = subprocess.run([sys.executable, "-m", "lmpc_mpc.mpc_node"], env=env, cwd=tmp_path,
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
-    assert "LMPC_EXECUTOR='multi' is not an executor: use one of single, events" in proc.stderr
+    assert "LMPC_EXECUTOR='multi' is not an executor: use one of events, single" in proc.stderr

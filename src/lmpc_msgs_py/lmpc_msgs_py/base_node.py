@@ -35,7 +35,7 @@ from lmpc_msgs_py.codec import DecodeError, decode, encode
 from lmpc_msgs_py.freshness import SequenceGate, StaleMessage
 from lmpc_msgs_py.messages import LmpcMessage
 from lmpc_msgs_py.profiling import StageTimes
-from lmpc_msgs_py.scheduling import apply_priority_from_env
+from lmpc_msgs_py.scheduling import apply_priority_from_env, executor_from_env
 from lmpc_msgs_py.supervision import follow_supervisor
 
 M = TypeVar("M", bound=LmpcMessage)
@@ -46,13 +46,6 @@ BRIDGE_GONE_EXIT_S = 10.0
 node publishes ``/clock`` any more, before it ends its process (parameter
 ``bridge_gone_exit_s``; 0 = wait forever). Long enough for a bridge restarted by hand."""
 
-EXECUTOR_ENV = "LMPC_EXECUTOR"
-EXECUTORS = ("single", "events")
-"""How :func:`run_node` spins a node (environment ``LMPC_EXECUTOR``; ``run_graph.py
---executor``): ``single``, rclpy's single-threaded executor (``rclpy.spin``); ``events``,
-``rclpy.experimental.EventsExecutor`` (a step of the sync graph ~0.6 ms shorter,
-docs/RESULTS.md). Not the multi-threaded executor: it is slow in these wheels (README)."""
-DEFAULT_EXECUTOR = "single"
 EVENTS_SPIN_TIMEOUT_S = 0.5
 """The EventsExecutor is spun by ``spin_once`` with this timeout, never by its ``spin()``."""
 
@@ -282,10 +275,10 @@ def run_node(factory: Callable[[], Node], args: Optional[list[str]] = None) -> i
     """
     follow_supervisor()  # before the slow parts: a dead launcher must not leave us behind
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    executor = os.environ.get(EXECUTOR_ENV, "").strip() or DEFAULT_EXECUTOR
-    if executor not in EXECUTORS:
-        print(f"{EXECUTOR_ENV}={executor!r} is not an executor: use one of "
-              f"{', '.join(EXECUTORS)}", file=sys.stderr, flush=True)
+    try:
+        executor = executor_from_env()
+    except ValueError as exc:
+        print(exc, file=sys.stderr, flush=True)
         return 2
     priority = apply_priority_from_env()  # before rclpy.init: DDS threads inherit it
     rclpy.init(args=args if args is not None else sys.argv)
@@ -295,8 +288,7 @@ def run_node(factory: Callable[[], Node], args: Optional[list[str]] = None) -> i
         node = factory()
         if priority is not None:
             node.get_logger().info(f"scheduling: {priority}")
-        if executor != DEFAULT_EXECUTOR:
-            node.get_logger().info(f"executor: {executor}")
+        node.get_logger().info(f"executor: {executor}")
         _spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

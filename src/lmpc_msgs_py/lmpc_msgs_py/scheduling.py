@@ -1,4 +1,5 @@
-"""Keeping the 10 Hz loop on time on a busy machine: real-time priority for a node.
+"""Keeping the 10 Hz loop on time on a busy machine: real-time priority for a node, and the
+executor that spins it (:func:`executor_from_env`).
 
 ``run_graph.py --rt-priority N`` starts the bridge and the MPC with ``LMPC_RT_PRIORITY=N``
 and the planner (not the embedded LLM's) with N-1, so the MPC preempts its decision steps;
@@ -17,6 +18,25 @@ import sys
 from typing import Optional
 
 PRIORITY_ENV = "LMPC_RT_PRIORITY"
+EXECUTOR_ENV = "LMPC_EXECUTOR"
+EXECUTORS = ("events", "single")
+"""How ``run_node`` spins a node (``$LMPC_EXECUTOR``; ``run_graph.py --executor``):
+``events``, ``rclpy.experimental.EventsExecutor`` (the default since 2026-12-06: a step of
+the sync graph ~0.6 ms shorter, the whole graph test suite passes under it;
+docs/RESULTS.md, "The EventsExecutor"); ``single``, rclpy's single-threaded executor
+(``rclpy.spin``), the default before. Not the multi-threaded executor: it is slow in these
+wheels (README)."""
+DEFAULT_EXECUTOR = "events"
+
+
+def executor_from_env() -> str:
+    """The executor ``$LMPC_EXECUTOR`` names (unset or empty: ``DEFAULT_EXECUTOR``);
+    ValueError naming the value and the choices for anything else."""
+    name = os.environ.get(EXECUTOR_ENV, "").strip() or DEFAULT_EXECUTOR
+    if name not in EXECUTORS:
+        raise ValueError(f"{EXECUTOR_ENV}={name!r} is not an executor: use one of "
+                         f"{', '.join(EXECUTORS)}")
+    return name
 
 
 def apply_priority_from_env() -> Optional[str]:
