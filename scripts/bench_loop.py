@@ -133,6 +133,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                 print(f"{tag} ({variant or 'defaults'}): run_graph wrote no summary (exit "
                       f"{proc.returncode}):\n{(proc.stdout + proc.stderr)[-2000:]}",
                       file=sys.stderr)
+                done = {v: rows for v, rows in runs.items() if rows}
+                if done:  # the runs before it keep their figures
+                    print(table(done))
+                print(f"summaries in {out}")
                 return 3
             row = figures(json.loads(summary_path.read_text()))
             runs[variant].append(row)

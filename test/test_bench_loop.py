@@ -39,3 +39,13 @@ def test_table_gives_medians_and_ratios_to_the_first_variant() -> None:
 def test_a_run_count_below_one_is_refused() -> None:
     with pytest.raises(SystemExit):
         bench_loop.parse_args(["--runs", "0"])
+
+
+def test_a_variant_run_graph_refuses_ends_the_benchmark_with_its_error(
+        tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
+    code = bench_loop.main(["--runs", "1", "--variants", "--executor bogus",
+                            "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 3
+    assert "v0-run1 (--executor bogus): run_graph wrote no summary (exit 2)" in err
+    assert "invalid choice: 'bogus'" in err
