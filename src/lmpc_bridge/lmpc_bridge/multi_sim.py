@@ -57,6 +57,7 @@ from lmpc_bridge import sumo_rng
 from lmpc_bridge.multi_scene import EgoSpec, ego_scene, ego_specs
 from lmpc_bridge.record import EpisodeRecord, StepRecord
 from lmpc_bridge.scenarios import Scene, SceneError, build_scene
+from lmpc_bridge.scenarios.base import check_sumo_path
 from lmpc_bridge.shadow import EgoShadow, LaneShape, lane_shapes, shadow_id
 from lmpc_bridge.participants import (
     MAX_AGENT_ACCEL_MPS2,
@@ -123,7 +124,7 @@ class MultiSumoSim:
         self._vehicle = vehicle
         self._range_m = float(sensing_range_m)
         self._history_len = max(int(round(history_s / DT_S)), 1)
-        self._work_dir = Path(work_dir)
+        self._work_dir = check_sumo_path(Path(work_dir), "the SUMO work directory")
         self._traci = traci
         self._binary = sumo_binary
         self._started = False

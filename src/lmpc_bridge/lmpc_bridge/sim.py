@@ -66,6 +66,7 @@ from lmpc_bridge.participants import (
 from lmpc_bridge.record import EpisodeRecord, StepRecord
 from lmpc_bridge.route_watch import RouteWatch
 from lmpc_bridge.scenarios import Scene, build_scene
+from lmpc_bridge.scenarios.base import check_sumo_path
 from lmpc_bridge.shadow import EgoShadow, LaneShape, lane_shapes
 
 DT_S = 0.1
@@ -131,7 +132,7 @@ class SumoSim:
         self._vehicle = vehicle
         self._range_m = float(sensing_range_m)
         self._history_len = max(int(round(history_s / DT_S)), 1)
-        self._work_dir = Path(work_dir)
+        self._work_dir = check_sumo_path(Path(work_dir), "the SUMO work directory")
         self._traci = traci
         self._binary = sumo_binary
         self._extra_args = tuple(extra_sumo_args)

@@ -177,6 +177,16 @@ def sumo_binary(name: str) -> str:
     raise SceneError(f"SUMO tool {name!r} not found: install eclipse-sumo or put it on PATH")
 
 
+def check_sumo_path(path: Path, what: str) -> Path:
+    """``path`` if SUMO's tools can be given files under it: they split file options at
+    ``,`` (a list of files), so a folder named ``a,b`` fails later with a "could not open"
+    error naming only the part before the comma. SceneError naming ``what`` otherwise."""
+    if "," in str(path):
+        raise SceneError(f"{what} {str(path)!r} contains ',': SUMO reads ',' in a file "
+                         "option as a list separator; choose a path without one")
+    return path
+
+
 def run_netconvert(*, nodes_file: Path, edges_file: Path, net_file: Path,
                    extra_args: tuple[str, ...] = ()) -> None:
     """Build ``net_file`` from plain XML with netconvert (SceneError on failure)."""
