@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, Optional, Sequence
 
-from lmpc_msgs_py.scheduling import DEFAULT_EXECUTOR, EXECUTOR_ENV, EXECUTORS
+from lmpc_msgs_py.scheduling import DEFAULT_EXECUTOR, EXECUTOR_ENV, EXECUTORS, CpuLatencyHold
 
 if __package__:  # lmpc_scripts.run_graph
     from . import graph_multi
@@ -344,6 +344,11 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
                          "CAP_SYS_NICE, else they say so and run normally; default 0: off). "
                          "Keeps the control cycle on time next to CPU-heavy jobs "
                          "(docs/RESULTS.md)")
+    ap.add_argument("--cpu-dma-latency", type=int_in(0, 1_000_000), default=None, metavar="US",
+                    help="for the run, keep every core out of idle states it needs more than "
+                         "US microseconds to leave (Linux PM QoS, /dev/cpu_dma_latency; 0: "
+                         "poll only; needs root, else it says so and runs normally). Keeps a "
+                         "realtime run's steps fast after ~90 ms idle (docs/RESULTS.md)")
     ap.add_argument("--executor", choices=EXECUTORS, default=None,
                     help="how every node spins: events (rclpy.experimental.EventsExecutor, "
                          "the default: a sync step ~0.6 ms shorter, docs/RESULTS.md) or single "
@@ -494,8 +499,21 @@ def run(args: argparse.Namespace, stops: Optional[StopSignals] = None) -> dict[s
         stops.stopping = True
         return scene_failure(run_dir, args, mismatch)
     graph = Graph(run_dir, ros_env(args.domain_id), echo=not args.quiet)
-    if args.egos > 1:
-        return _run_multi(args, stops, run_dir, graph)
+    latency = CpuLatencyHold(args.cpu_dma_latency)
+    args.cpu_dma_latency_state = latency.state
+    if latency.state is not None:
+        print(f"[run_graph] cpu_dma_latency {latency.state}", flush=True)
+    try:
+        if args.egos > 1:
+            return _run_multi(args, stops, run_dir, graph)
+        return _run_single(args, stops, run_dir, graph)
+    finally:
+        latency.close()
+
+
+def _run_single(args: argparse.Namespace, stops: StopSignals, run_dir: Path,
+                graph: Graph) -> dict[str, object]:
+    """One ego: start the nodes, watch them until the bridge ends, stop them in order."""
     params = node_params(args, run_dir)
     # Keep the planner (a local LLM may saturate a core) off the core the MPC uses.
     cpus = sorted(os.sched_getaffinity(0))
@@ -710,6 +728,7 @@ def summarize(run_dir: Path, graph: Graph, wall_s: float, *, crashed: list[str],
         "instruction": args.instruction,
         "clock": args.clock,
         "executor": args.executor or os.environ.get(EXECUTOR_ENV) or DEFAULT_EXECUTOR,
+        "cpu_dma_latency": getattr(args, "cpu_dma_latency_state", None),
         "decision_latency_s": args.decision_latency,
         "emergency_latency_s": effective_emergency_latency(args),
         "planning_period_s": args.planning_period,

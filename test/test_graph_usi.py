@@ -16,6 +16,8 @@ from typing import Any
 
 import pytest
 
+from lmpc_msgs_py.scheduling import CPU_LATENCY_DEVICE
+
 from graphkit import REPO, run_graph
 
 pytestmark = pytest.mark.graph
@@ -108,12 +110,16 @@ def test_the_single_threaded_executor_runs_the_same_episode(
 ) -> None:
     """``--executor single`` (rclpy's single-threaded executor, the default until the
     EventsExecutor took over): every node runs under it and the episode is the
-    benchmark's, as with the default executor (the tests above)."""
+    benchmark's, as with the default executor (the tests above). The run also holds the
+    PM QoS wake-up latency request (``--cpu-dma-latency``) where it may."""
     run = run_graph(tmp_path, domain_id, "--scenario", "usi", "--seed", "0", "--planner",
-                    "rules", "--clock", "sync", "--executor", "single", "--quiet")
+                    "rules", "--clock", "sync", "--executor", "single", "--quiet",
+                    "--cpu-dma-latency", "0")
     s = run.summary
     assert s["outcome"] == "reached", f"{s['outcome']}: {s['detail']}\n{run.output[-3000:]}"
     assert run.returncode == 0 and s["executor"] == "single"
+    may = os.access(CPU_LATENCY_DEVICE, os.W_OK)
+    assert str(s["cpu_dma_latency"]).startswith("held" if may else "not held"), s
     assert s["late_controls"] == 0 and s["collisions"] == 0
     assert all(n["exit_code"] == 0 and n["tracebacks"] == 0 for n in s["nodes"].values())
     for name in ("bridge", "mpc", "planner"):

@@ -400,9 +400,11 @@ class BridgeNode(BridgeBase):
         self.pub_clock.publish(Clock(clock=_stamp(t)))
         self._step_published()
         self.inputs.timing[obs.ego.seq] = _StepTiming(published_wall_s=self.last_publish_wall_s)
-        self.pub_ego.publish(obs.ego)
+        # the ego state last: the MPC and the planner pair the three by stamp and start on
+        # the ego state, so they decode the agents while the bridge still publishes
         self.pub_agents.publish(obs.agents)
         self.pub_signals.publish(obs.signals)
+        self.pub_ego.publish(obs.ego)
         with times.stage("publish odometry"):
             self._publish_odom(obs.ego)
         self.waiting_since = time.monotonic()

@@ -10,10 +10,18 @@ again; the nodes wait on DDS between steps, so they take a core only for the ~5-
 a step and a benchmark worker next to them gets the rest. Needs ``CAP_SYS_NICE`` (root,
 or an ``rtprio`` limit in /etc/security/limits.conf): without it the node says so once
 and runs at normal priority. Measured effect: docs/RESULTS.md, "Where the time goes".
+
+``run_graph.py --cpu-dma-latency US`` holds a Linux PM QoS request (:class:`CpuLatencyHold`)
+for the run: no core goes into an idle state it needs longer than ``US`` microseconds to
+leave (0: the cores only poll while idle). Between the steps of a realtime run (~93 ms of
+100 ms idle) the cores otherwise sleep deeply and every stage of the next step runs slower.
+The standard real-time Linux setting (cyclictest holds the same request); it costs power,
+not time.
 """
 from __future__ import annotations
 
 import os
+import struct
 import sys
 from typing import Optional
 
@@ -59,3 +67,43 @@ def apply_priority_from_env() -> Optional[str]:
               "an rtprio limit): normal scheduling", file=sys.stderr, flush=True)
         return None
     return f"SCHED_FIFO priority {priority}"
+
+
+CPU_LATENCY_DEVICE = "/dev/cpu_dma_latency"
+
+
+class CpuLatencyHold:
+    """The PM QoS request "wake-up latency at most ``max_us``" held while this is open
+    (the kernel drops it when the file is closed, also when the process dies); ``state``
+    says what was done or why not. Needs write access to the device (root); without it,
+    or without the device, nothing is held and ``state`` names the reason."""
+
+    def __init__(self, max_us: Optional[int], device: str = CPU_LATENCY_DEVICE) -> None:
+        self._fd: Optional[int] = None
+        self.state: Optional[str] = None
+        if max_us is None:
+            return
+        if max_us < 0:
+            raise ValueError(f"a wake-up latency must be >= 0 us, not {max_us}")
+        try:
+            fd = os.open(device, os.O_WRONLY)
+        except OSError as exc:
+            self.state = f"not held: cannot open {device} ({exc.strerror})"
+            return
+        try:
+            os.write(fd, struct.pack("i", max_us))
+        except OSError as exc:
+            os.close(fd)
+            self.state = f"not held: {device} refused {max_us} ({exc.strerror})"
+            return
+        self._fd = fd
+        self.state = f"held: wake-up latency <= {max_us} us ({device})"
+
+    @property
+    def held(self) -> bool:
+        return self._fd is not None
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None

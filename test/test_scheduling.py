@@ -1,0 +1,47 @@
+"""The PM QoS wake-up latency request of ``run_graph.py --cpu-dma-latency`` (without the
+kernel's device: a file stands in for it, the kernel reads the same 4 bytes)."""
+from __future__ import annotations
+
+import os
+import struct
+from pathlib import Path
+
+import pytest
+
+from lmpc_msgs_py.scheduling import CpuLatencyHold
+from lmpc_scripts import run_graph
+
+
+def test_the_request_is_written_and_held_until_closed(tmp_path: Path) -> None:
+    dev = tmp_path / "cpu_dma_latency"
+    dev.write_bytes(b"")
+    hold = CpuLatencyHold(25, device=str(dev))
+    assert hold.held and hold.state == f"held: wake-up latency <= 25 us ({dev})"
+    assert struct.unpack("i", dev.read_bytes()) == (25,)
+    fd = hold._fd
+    assert fd is not None
+    os.fstat(fd)  # open while held
+    hold.close()
+    assert not hold.held
+    with pytest.raises(OSError):
+        os.fstat(fd)
+    hold.close()  # twice is harmless
+
+
+def test_no_device_says_why_and_holds_nothing(tmp_path: Path) -> None:
+    hold = CpuLatencyHold(0, device=str(tmp_path / "missing"))
+    assert not hold.held
+    assert hold.state is not None and hold.state.startswith("not held: cannot open")
+    assert str(tmp_path / "missing") in hold.state
+    assert CpuLatencyHold(None).state is None  # not asked: nothing said
+    with pytest.raises(ValueError, match="-1"):
+        CpuLatencyHold(-1, device=str(tmp_path / "missing"))
+
+
+def test_run_graph_refuses_a_negative_latency(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        run_graph.parse_args(["--cpu-dma-latency", "-3"])
+    assert exc.value.code == 2
+    assert "--cpu-dma-latency" in capsys.readouterr().err
+    assert run_graph.parse_args(["--cpu-dma-latency", "0"]).cpu_dma_latency == 0
+    assert run_graph.parse_args([]).cpu_dma_latency is None
