@@ -1,3 +1,6 @@
+"""Keep every lmpc-rules episode record of the development scenes per style (pickles in /tmp/recs):
+    PYTHONPATH=<folder with lmpc_scripts -> scripts> .venv/bin/python dump_records.py rab,lane 100 125
+(the work directory must not contain a comma: SUMO splits file options at it)."""
 import pickle, sys
 from lmpc_bridge.evaluation.scenes import SceneSpec
 from lmpc_bridge.runner import run_episode

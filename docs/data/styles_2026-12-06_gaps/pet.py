@@ -1,3 +1,5 @@
+"""Post-encroachment time to vehicles the ego went in front of on its junction path, from the records
+of dump_records.py: python pet.py usi."""
 import glob, math, pickle, statistics, sys
 import numpy as np
 sys.path.insert(0, "/work/main/src/lmpc_bridge")

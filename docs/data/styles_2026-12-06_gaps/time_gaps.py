@@ -1,3 +1,5 @@
+"""Accepted lag at junction entries (FAMILY jn) / time gaps at lane changes (FAMILY lc) from the
+records of dump_records.py: python time_gaps.py rab jn [x: per seed]."""
 import glob, math, pickle, statistics, sys
 sys.path.insert(0, "/work/main/src/lmpc_bridge")
 from lmpc_bridge.evaluation.style import CROSS_HEADING_RAD, MOVING_MPS, _angle, edge_lane
