@@ -478,10 +478,17 @@ def run(args: argparse.Namespace, stops: Optional[StopSignals] = None) -> dict[s
     run_dir.mkdir(parents=True, exist_ok=True)
     for name in ("episode.json", *PROFILE_FILES.values()):
         (run_dir / name).unlink(missing_ok=True)
+    from lmpc_bridge.scenarios import SceneError
+    from lmpc_bridge.scenarios.base import check_sumo_path
+
+    try:
+        check_sumo_path(run_dir, "the run directory")
+    except SceneError as exc:
+        stops.stopping = True
+        return scene_failure(run_dir, args, f"{exc} (no node was started)")
     if args.scene is not None:
         # Check the scene file and its network before any node starts (the bridge reuses
         # this build); problems only SUMO can see come from the bridge ("scene error:").
-        from lmpc_bridge.scenarios import SceneError
         from lmpc_bridge.scenarios.external import build_external_scene
 
         try:
