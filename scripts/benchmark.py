@@ -179,6 +179,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         misspelt = unknown_families(families)
         if misspelt:
             ap.error(misspelt)
+    if args.out.exists() and not args.out.is_dir():
+        ap.error(f"--out {args.out}: a file, not a folder (the rows, tables and logs go into it)")
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        ap.error(f"--out {args.out}: cannot make the folder ({exc.strerror})")
     multi = _multi_module()
     several = [f for f in families if f in multi.MULTI_FAMILIES]
     if several:  # several egos per scene: their own loop and rows (docs/MULTI.md)
@@ -251,7 +257,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                      f"one of {', '.join(LLM_METHODS)}")
         replay = (str(args.replay_from.resolve()), args.replay_of)
     latency = resolve_latency(args.decision_latency, args.emergency_latency)
-    args.out.mkdir(parents=True, exist_ok=True)
     work_dir = tempfile.mkdtemp(prefix="lmpc-bench-")
     jobs = [(m, f, s) for f in families for s in args.seeds for m in methods]
     scene_file: Optional[str] = None

@@ -88,3 +88,16 @@ def test_a_factory_named_module_function_is_imported_when_the_method_runs() -> N
     wiring = entry.build(SceneSpec("x", "usi", 0))
     assert wiring.planner is None and hasattr(wiring.controller, "compute")
     assert set(wiring.finish(None)) == {"route_overrides", "stale_steps", "stale_agent_steps"}
+
+
+def test_an_out_that_is_a_file_is_refused_by_name(tmp_path: Path) -> None:
+    """--out names a file: the benchmark says so before any scene runs (it ended with
+    FileExistsError from mkdir before)."""
+    afile = tmp_path / "results.csv"
+    afile.write_text("kept\n")
+    out = subprocess.run([sys.executable, str(REPO / "scripts" / "benchmark.py"),
+                          "--families", "usi", "--seeds", "0", "--methods", "mpc", "--out",
+                          str(afile)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2, out.stderr
+    assert f"--out {afile}: a file, not a folder" in out.stderr
+    assert "Traceback" not in out.stderr and afile.read_text() == "kept\n"
