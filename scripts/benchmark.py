@@ -77,6 +77,7 @@ from lmpc_bridge.evaluation.style import (
 )
 from lmpc_bridge.evaluation.table import aggregate, table2_md, table_md
 from lmpc_llm_planner.config import add_timing_args, timing_arg_error
+from lmpc_msgs_py.cli import folder_arg
 from lmpc_scripts.method_rl import ALGOS, POLICY_DIR_ENV, policy_path
 from lmpc_scripts.methods import (
     LLM_METHODS,
@@ -117,7 +118,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     help="pool: local worker processes (default); ray: Ray tasks, on the "
                          "cluster at $RAY_ADDRESS if set, else on a local Ray (needs the "
                          "ray extra; README, 'Running on a Ray cluster')")
-    ap.add_argument("--out", type=Path, default=Path("runs/bench"))
+    ap.add_argument("--out", type=folder_arg, default=Path("runs/bench"))
     ap.add_argument("--scene", type=Path,
                     help="run this scene description (YAML) instead of families")
     ap.add_argument("--instruction", default=None, metavar="TEXT",
@@ -179,8 +180,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         misspelt = unknown_families(families)
         if misspelt:
             ap.error(misspelt)
-    if args.out.exists() and not args.out.is_dir():
-        ap.error(f"--out {args.out}: a file, not a folder (the rows, tables and logs go into it)")
     try:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

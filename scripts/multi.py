@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 from typing import Any, Optional
 
+from lmpc_msgs_py.cli import folder_arg
 from lmpc_scripts.methods import make_planner
 
 MULTI_FAMILIES = ("narrow", "usi-multi", "merge")
@@ -242,7 +243,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     ap.add_argument("--methods", default="lmpc-rules")
     ap.add_argument("--coordination", default="none,distributed,central")
     ap.add_argument("--max-time", type=float, default=120.0)
-    ap.add_argument("--out", type=Path, default=Path("runs/multi"))
+    ap.add_argument("--out", type=folder_arg, default=Path("runs/multi"))
     args = ap.parse_args(argv)
     modes = args.coordination.split(",")
     bad = [m for m in modes if m not in MODES]

@@ -51,6 +51,7 @@ from lmpc_bridge.evaluation.rows import percentile, scene_log_name
 from lmpc_bridge.evaluation.scenes import FAMILY_MAX_TIME_S, SceneSpec, raise_interrupt
 from lmpc_llm_planner.scene import Scene
 from lmpc_llm_planner.validation import DecisionMeta
+from lmpc_msgs_py.cli import folder_arg
 from lmpc_msgs_py.messages import Decision
 
 from lmpc_scripts import methods
@@ -682,7 +683,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--merge", type=Path, nargs="+", metavar="REGRET_DIR",
                     help="merge finished regret folders into --out (no re-run)")
     ap.add_argument("--method", help="the lmpc-* method of the run (needed if it has several)")
-    ap.add_argument("--out", type=Path, help="output folder (default RUN_DIR/regret)")
+    ap.add_argument("--out", type=folder_arg, help="output folder (default RUN_DIR/regret)")
     ap.add_argument("--lookahead-s", type=float, default=OracleConfig.lookahead_s,
                     help="rollout length, s of sim time (default: the oracle's)")
     ap.add_argument("--continuation", choices=("none", "rules"),

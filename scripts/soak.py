@@ -29,6 +29,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional, Sequence
 
+from lmpc_msgs_py.cli import folder_arg
+
 SCRIPTS = Path(__file__).resolve().parent
 RUN_GRAPH = SCRIPTS / "run_graph.py"
 NODE_NAMES = {
@@ -131,7 +133,7 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     ap.add_argument("--clock", default="sync", choices=["sync", "realtime"])
     ap.add_argument("--max-time-s", type=float, default=120.0)
     ap.add_argument("--domain-id", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", 80)))
-    ap.add_argument("--out", type=Path, default=Path("runs") / "soak")
+    ap.add_argument("--out", type=folder_arg, default=Path("runs") / "soak")
     ap.add_argument("--sample-s", type=float, default=0.5)
     ap.add_argument("--episode-timeout-s", type=float, default=600.0)
     ap.add_argument("--rss-bound-mb", type=float, default=30.0)

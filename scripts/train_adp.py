@@ -32,6 +32,7 @@ os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false "
 
 import numpy as np  # noqa: E402
 
+from lmpc_msgs_py.cli import folder_arg  # noqa: E402
 from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE  # noqa: E402
 from lmpc_mpc import adp  # noqa: E402
 from lmpc_mpc.model import NU, NX  # noqa: E402
@@ -120,7 +121,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     help="start from this network (its layers and input scaling)")
     ap.add_argument("--seed", type=int, default=0, help="network init and perturbations")
     ap.add_argument("--eval-every", type=int, default=250)
-    ap.add_argument("--out", type=Path, default=Path("runs/adp/train"))
+    ap.add_argument("--out", type=folder_arg, default=Path("runs/adp/train"))
     ap.add_argument("--install", action="store_true", help="copy to policies/adp.npz")
     args = ap.parse_args(argv)
     try:

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
-from lmpc_msgs_py.cli import int_arg
+from lmpc_msgs_py.cli import int_arg, folder_arg
 
 REPO = Path(__file__).resolve().parent.parent
 MIN_TRAIN_SEED = 10000
@@ -68,7 +68,7 @@ def parse_args(argv: Optional[list[str]] = None) -> argparse.Namespace:
                    help="end a training episode still running after this many times its "
                         "estimated steps (truncated, outcome 'cap'; 0, the default: only the "
                         "200 s cap; docs/RL.md)")
-    p.add_argument("--out", type=Path, default=None)
+    p.add_argument("--out", type=folder_arg, default=None)
     p.add_argument("--eval-scenes", type=int_arg(0), default=10,
                    help="after training, drive this many further training scenes (the "
                         "seeds after the training ones) with the greedy policy and with "

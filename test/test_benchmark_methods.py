@@ -90,14 +90,19 @@ def test_a_factory_named_module_function_is_imported_when_the_method_runs() -> N
     assert set(wiring.finish(None)) == {"route_overrides", "stale_steps", "stale_agent_steps"}
 
 
-def test_an_out_that_is_a_file_is_refused_by_name(tmp_path: Path) -> None:
-    """--out names a file: the benchmark says so before any scene runs (it ended with
-    FileExistsError from mkdir before)."""
+@pytest.mark.parametrize("script,args", [
+    ("benchmark.py", ["--families", "usi", "--seeds", "0", "--methods", "mpc"]),
+    ("multi.py", []), ("regret.py", ["RUN_DIR"]), ("bench_loop.py", ["--runs", "1"]),
+])
+def test_an_out_that_is_a_file_is_refused_by_name(tmp_path: Path, script: str,
+                                                  args: list[str]) -> None:
+    """--out names a file: the script says so before it runs anything (benchmark.py,
+    multi.py and bench_loop.py ended with a FileExistsError traceback from mkdir before)."""
     afile = tmp_path / "results.csv"
     afile.write_text("kept\n")
-    out = subprocess.run([sys.executable, str(REPO / "scripts" / "benchmark.py"),
-                          "--families", "usi", "--seeds", "0", "--methods", "mpc", "--out",
-                          str(afile)], capture_output=True, text=True, timeout=60)
+    out = subprocess.run([sys.executable, str(REPO / "scripts" / script),
+                          *[str(tmp_path) if a == "RUN_DIR" else a for a in args],
+                          "--out", str(afile)], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2, out.stderr
-    assert f"--out {afile}: a file, not a folder" in out.stderr
+    assert f"argument --out: '{afile}' is a file, not a folder" in out.stderr
     assert "Traceback" not in out.stderr and afile.read_text() == "kept\n"

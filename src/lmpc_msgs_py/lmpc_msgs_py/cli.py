@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Callable, Optional
 
 
@@ -21,3 +22,13 @@ def int_arg(lo: int, hi: Optional[int] = None) -> Callable[[str], int]:
         return value
 
     return parse
+
+
+def folder_arg(text: str) -> Path:
+    """An argparse ``type`` for an output folder (made later if missing): refused with one
+    line when the path is an existing file (``mkdir`` would end the run with a traceback
+    after the work, or before it with ``FileExistsError``)."""
+    path = Path(text)
+    if path.exists() and not path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a file, not a folder")
+    return path
