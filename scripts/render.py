@@ -32,6 +32,7 @@ from lmpc_bridge.render import (
     render_scene,
     save_run,
 )
+from lmpc_msgs_py.cli import file_arg, folder_arg
 
 METHODS = ("mpc", "lmpc-rules")
 MULTI_MODES = ("none", "distributed", "central")
@@ -89,7 +90,7 @@ def _parse(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     sc = sub.add_parser("scene", help="bird's-eye PNG of a scene")
     sc.add_argument("--family", required=True)
     sc.add_argument("--seed", type=int, default=0)
-    sc.add_argument("--out", type=Path, default=None, help="default <family>_<seed>_scene.png")
+    sc.add_argument("--out", type=file_arg, default=None, help="default <family>_<seed>_scene.png")
     sc.add_argument("--work-dir", type=Path, default=None, help="scene cache folder")
     sc.add_argument("--full", action="store_true", help="the whole map, not the route area")
     rn = sub.add_parser("run", help="a run: path by speed, key moments, optional GIF")
@@ -101,15 +102,15 @@ def _parse(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     rn.add_argument("--instruction", default=None,
                     help="the user's text for the in-process run's planner (e.g. 'drive "
                          "aggressively')")
-    rn.add_argument("--save-run", type=Path, default=None,
+    rn.add_argument("--save-run", type=folder_arg, default=None,
                     help="write the in-process run's episode.json / decisions.jsonl here")
-    rn.add_argument("--out", type=Path, default=None, help="PNG (default RUN_DIR/run.png)")
-    rn.add_argument("--gif", type=Path, default=None, help="also write an animated GIF")
+    rn.add_argument("--out", type=file_arg, default=None, help="PNG (default RUN_DIR/run.png)")
+    rn.add_argument("--gif", type=file_arg, default=None, help="also write an animated GIF")
     rn.add_argument("--every-k", type=int, default=3, help="GIF: every k-th step")
     rn.add_argument("--work-dir", type=Path, default=None, help="scene cache folder")
     bars = sub.add_parser("bars", help="O.C. bars from a benchmark's summary.json")
     bars.add_argument("results_dir", type=Path)
-    bars.add_argument("--out", type=Path, default=None, help="default RESULTS_DIR/oc_bars.png")
+    bars.add_argument("--out", type=file_arg, default=None, help="default RESULTS_DIR/oc_bars.png")
     mu = sub.add_parser("multi", help="a multi-ego run: strip of instants, optional GIF")
     mu.add_argument("--family", default="narrow")
     mu.add_argument("--seed", type=int, default=0)
@@ -117,9 +118,9 @@ def _parse(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     mu.add_argument("--coordination", choices=MULTI_MODES, default="central")
     mu.add_argument("--max-time-s", type=float, default=120.0)
     mu.add_argument("--instants", type=int, default=4, help="panels of the strip")
-    mu.add_argument("--out", type=Path, default=None,
+    mu.add_argument("--out", type=file_arg, default=None,
                     help="PNG strip (default <family>_<seed>_<coordination>_multi.png)")
-    mu.add_argument("--gif", type=Path, default=None, help="also write an animated GIF")
+    mu.add_argument("--gif", type=file_arg, default=None, help="also write an animated GIF")
     mu.add_argument("--every-k", type=int, default=4, help="GIF: every k-th step")
     mu.add_argument("--work-dir", type=Path, default=None, help="scene cache folder")
     args = ap.parse_args(argv)

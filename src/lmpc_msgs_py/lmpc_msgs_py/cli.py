@@ -32,3 +32,16 @@ def folder_arg(text: str) -> Path:
     if path.exists() and not path.is_dir():
         raise argparse.ArgumentTypeError(f"{text!r} is a file, not a folder")
     return path
+
+
+def file_arg(text: str) -> Path:
+    """An argparse ``type`` for an output file (its folders made later if missing): refused
+    with one line when the path is a folder or lies under a file, so a long run does not end
+    without its output."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a folder, not a file")
+    under = next((p for p in path.parents if p.exists()), None)
+    if under is not None and not under.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} lies under the file {str(under)!r}")
+    return path

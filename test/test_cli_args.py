@@ -1,0 +1,41 @@
+"""Output paths on the command line are checked when the arguments are read, so a long run
+does not end in a traceback without its output (``lmpc_msgs_py.cli``)."""
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from lmpc_msgs_py.cli import file_arg, folder_arg
+
+from graphkit import REPO
+
+
+def test_folder_and_file_arguments_name_what_is_in_the_way(tmp_path: Path) -> None:
+    afile = tmp_path / "notes.txt"
+    afile.write_text("kept\n")
+    assert folder_arg(str(tmp_path / "new" / "deeper")) == tmp_path / "new" / "deeper"
+    assert folder_arg(str(tmp_path)) == tmp_path
+    with pytest.raises(argparse.ArgumentTypeError, match="is a file, not a folder"):
+        folder_arg(str(afile))
+    assert file_arg(str(tmp_path / "new" / "x.png")) == tmp_path / "new" / "x.png"
+    assert file_arg(str(afile)) == afile  # overwritten later, as asked
+    with pytest.raises(argparse.ArgumentTypeError, match="is a folder, not a file"):
+        file_arg(str(tmp_path))
+    with pytest.raises(argparse.ArgumentTypeError,
+                       match=f"lies under the file '{afile}'"):
+        file_arg(str(afile / "sub" / "x.png"))
+    assert afile.read_text() == "kept\n"
+
+
+def test_render_refuses_a_picture_under_a_file_before_it_runs(tmp_path: Path) -> None:
+    afile = tmp_path / "notes.txt"
+    afile.write_text("kept\n")
+    out = subprocess.run([sys.executable, str(REPO / "scripts" / "render.py"), "run",
+                          "--family", "usi", "--seed", "0", "--gif", str(afile / "g.gif")],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert f"argument --gif: '{afile / 'g.gif'}' lies under the file '{afile}'" in out.stderr
