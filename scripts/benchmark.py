@@ -153,7 +153,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--coordination", default="none,distributed,central", metavar="MODES",
                     help="multi-ego families (narrow): the coordination modes to run, "
                          "none|distributed|central (docs/MULTI.md)")
-    ap.add_argument("--decision-stats", type=Path, metavar="DIR",
+    ap.add_argument("--decision-stats", type=folder_arg, metavar="DIR",
                     help="only print the planner figures of a finished run folder "
                          "(DIR/decisions/*.jsonl) and write DIR/decisions.md")
     args = ap.parse_args(argv)

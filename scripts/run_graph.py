@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, Optional, Sequence
 
+from lmpc_msgs_py.cli import file_arg, folder_arg
 from lmpc_msgs_py.scheduling import DEFAULT_EXECUTOR, EXECUTOR_ENV, EXECUTORS, CpuLatencyHold
 
 if __package__:  # lmpc_scripts.run_graph
@@ -320,10 +321,10 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
                          "or the graph does not start")
     ap.add_argument("--clock", choices=["sync", "realtime"], default="sync")
     graph_multi.add_args(ap)
-    ap.add_argument("--run-dir", type=Path,
+    ap.add_argument("--run-dir", type=folder_arg,
                     help="run folder (default runs/<scenario>-<seed>-<time>; with --scene "
                          "runs/<scene file stem>-<time>)")
-    ap.add_argument("--summary-json", type=Path, help="also write the summary here")
+    ap.add_argument("--summary-json", type=file_arg, help="also write the summary here")
     # a larger id makes DDS ports past 65535: the nodes died at start-up with "Calculated
     # port number is too high" (ROS 2 advises 0-101 on Linux)
     ap.add_argument("--domain-id", type=int_in(0, MAX_DOMAIN_ID),

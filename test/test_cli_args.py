@@ -39,3 +39,17 @@ def test_render_refuses_a_picture_under_a_file_before_it_runs(tmp_path: Path) ->
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert f"argument --gif: '{afile / 'g.gif'}' lies under the file '{afile}'" in out.stderr
+
+
+def test_run_graph_refuses_a_run_dir_or_summary_it_could_not_write(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from lmpc_scripts import run_graph
+
+    afile = tmp_path / "notes.txt"
+    afile.write_text("kept\n")
+    for flag, value, said in (("--run-dir", afile, "is a file, not a folder"),
+                              ("--summary-json", afile / "s.json", "lies under the file")):
+        with pytest.raises(SystemExit) as exc:
+            run_graph.parse_args([flag, str(value)])
+        assert exc.value.code == 2
+        assert f"argument {flag}: '{value}' {said}" in capsys.readouterr().err
