@@ -77,6 +77,7 @@ from lmpc_bridge.evaluation.style import (
 )
 from lmpc_bridge.evaluation.table import aggregate, table2_md, table_md
 from lmpc_llm_planner.config import add_timing_args, timing_arg_error
+from lmpc_llm_planner.prompt import instruction_error
 from lmpc_msgs_py.cli import folder_arg
 from lmpc_scripts.method_rl import ALGOS, POLICY_DIR_ENV, policy_path
 from lmpc_scripts.methods import (
@@ -255,6 +256,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             ap.error(f"--replay-of {args.replay_of!r}: the method that recorded the logs, "
                      f"one of {', '.join(LLM_METHODS)}")
         replay = (str(args.replay_from.resolve()), args.replay_of)
+    if args.instruction is not None and instruction_error(args.instruction):
+        # the planner would cut it (in process) or drop it (the graph)
+        ap.error(f"--instruction: {instruction_error(args.instruction)}")
     latency = resolve_latency(args.decision_latency, args.emergency_latency)
     work_dir = tempfile.mkdtemp(prefix="lmpc-bench-")
     jobs = [(m, f, s) for f in families for s in args.seeds for m in methods]

@@ -36,7 +36,8 @@ from pathlib import Path
 from typing import IO, Any, Optional, Sequence
 
 from lmpc_msgs_py.cli import file_arg, folder_arg
-from lmpc_msgs_py.scheduling import DEFAULT_EXECUTOR, EXECUTOR_ENV, EXECUTORS, CpuLatencyHold
+from lmpc_msgs_py.scheduling import (DEFAULT_EXECUTOR, EXECUTOR_ENV, EXECUTORS, CpuLatencyHold,
+                                     node_priorities)
 
 if __package__:  # lmpc_scripts.run_graph
     from . import graph_multi
@@ -372,6 +373,11 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     timing_error = timing_arg_error(args)
     if timing_error:
         ap.error(timing_error)
+    if args.instruction is not None:  # the planner node drops a text it refuses
+        from lmpc_llm_planner.prompt import instruction_error
+
+        if instruction_error(args.instruction):
+            ap.error(f"--instruction: {instruction_error(args.instruction)}")
     if args.planner_config is not None:
         from lmpc_llm_planner.config import PlannerConfigError, load_planner_config
 
@@ -542,7 +548,7 @@ def _run_single(args: argparse.Namespace, stops: StopSignals, run_dir: Path,
                 cpu_set = {cpus[-1]}
             elif split and name == "mpc":
                 cpu_set = set(cpus[:-1])
-            priority = rt_nodes(args).get(name)
+            priority = node_priorities(args.rt_priority, args.planner).get(name)
             env = {"LMPC_RT_PRIORITY": str(priority)} if priority else {}  # scheduling.py
             if args.executor:
                 env[EXECUTOR_ENV] = args.executor  # base_node.run_node
@@ -603,22 +609,6 @@ def _run_multi(args: argparse.Namespace, stops: StopSignals, run_dir: Path,
     episode = json.loads(episode_path.read_text()) if episode_path.exists() else {}
     summary.update(graph_multi.summary_extra(args, run_dir, episode, ended_early))
     return _write_summary(summary, run_dir, args)
-
-
-def rt_nodes(args: argparse.Namespace) -> dict[str, int]:
-    """Node -> real-time priority under ``--rt-priority N`` (none without it): N for the
-    bridge and the MPC; N - 1 for the planner (the bridge waits for its status every
-    step, so it must not fall behind a benchmark worker, but its decision steps take up
-    to ~20 ms on a city map and must not hold a core the MPC needs: the MPC preempts
-    it); none for the embedded LLM's planner, which would keep its core busy for
-    seconds at real-time priority."""
-    n = args.rt_priority
-    if not n:
-        return {}
-    out = {"bridge": n, "mpc": n}
-    if args.planner != "local" and n > 1:
-        out.update(planner=n - 1, mock_llm=n - 1)
-    return out
 
 
 def _signal_names(stops: StopSignals) -> str:

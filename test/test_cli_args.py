@@ -53,3 +53,14 @@ def test_run_graph_refuses_a_run_dir_or_summary_it_could_not_write(
             run_graph.parse_args([flag, str(value)])
         assert exc.value.code == 2
         assert f"argument {flag}: '{value}' {said}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("script", ["run_graph.py", "benchmark.py"])
+def test_an_instruction_the_planner_would_refuse_is_refused_by_the_script(script: str) -> None:
+    """2 001 characters: the planner node drops such a message (run_graph waited 60 s for
+    its receipt and ended with "did not report 'instruction received'"), and in process
+    the prompt cut it (the benchmark ran the scenes with a different text)."""
+    out = subprocess.run([sys.executable, str(REPO / "scripts" / script), "--instruction",
+                          "x" * 2001], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2
+    assert "--instruction: 2001 characters exceeds 2000" in out.stderr

@@ -45,3 +45,13 @@ def test_run_graph_refuses_a_negative_latency(capsys: pytest.CaptureFixture[str]
     assert "--cpu-dma-latency" in capsys.readouterr().err
     assert run_graph.parse_args(["--cpu-dma-latency", "0"]).cpu_dma_latency == 0
     assert run_graph.parse_args([]).cpu_dma_latency is None
+
+
+def test_the_planner_runs_one_priority_below_the_loop_and_never_with_the_llm() -> None:
+    from lmpc_msgs_py.scheduling import node_priorities
+
+    assert node_priorities(0, "rules") == {}
+    assert node_priorities(20, "rules") == {"bridge": 20, "mpc": 20, "planner": 19,
+                                            "mock_llm": 19}
+    assert node_priorities(20, "local") == {"bridge": 20, "mpc": 20}
+    assert node_priorities(1, "rules") == {"bridge": 1, "mpc": 1}  # no priority 0

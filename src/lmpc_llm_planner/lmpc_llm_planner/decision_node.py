@@ -29,7 +29,7 @@ from lmpc_msgs_py.messages import (
 from lmpc_msgs_py.observation import Observation
 
 from lmpc_llm_planner.assembler import ObservationAssembler
-from lmpc_llm_planner.prompt import MAX_INSTRUCTION_CHARS
+from lmpc_llm_planner.prompt import instruction_error
 
 STALE_AFTER_S = 0.3
 """Ego state older than this vs /clock (sim time): no new decision (RELIABILITY.md)."""
@@ -96,9 +96,9 @@ class DecisionNode(LmpcNode):
     # -- inputs ---------------------------------------------------------------------------
     def _on_instruction(self, msg: String) -> None:
         text = msg.data if isinstance(msg.data, str) else ""
-        if len(text) > MAX_INSTRUCTION_CHARS:
-            self.count_drop(self.topic(topics.INSTRUCTION), "data",
-                            f"{len(text)} characters exceeds {MAX_INSTRUCTION_CHARS}")
+        refused = instruction_error(text)
+        if refused:
+            self.count_drop(self.topic(topics.INSTRUCTION), "data", refused)
             return
         if self.core is not None:
             self.core.on_instruction(text)

@@ -101,6 +101,14 @@ class Prompt:
     tokens_estimate: int
 
 
+def instruction_error(text: str) -> Optional[str]:
+    """Why the planner refuses the user's instruction ``text`` (the node drops it, the
+    scripts refuse the argument), or None."""
+    if len(text) > MAX_INSTRUCTION_CHARS:
+        return f"{len(text)} characters exceeds {MAX_INSTRUCTION_CHARS}"
+    return None
+
+
 def estimate_tokens(text: str, *, chars_per_token: float = DEFAULT_CHARS_PER_TOKEN) -> int:
     """Token count ESTIMATE: characters / ``chars_per_token`` (rounded up)."""
     return int(math.ceil(len(text) / chars_per_token)) if text else 0

@@ -69,6 +69,21 @@ def apply_priority_from_env() -> Optional[str]:
     return f"SCHED_FIFO priority {priority}"
 
 
+def node_priorities(priority: int, planner: str) -> dict[str, int]:
+    """Node -> real-time priority under ``run_graph.py --rt-priority N`` (none for 0): N for
+    the bridge and the MPC; N - 1 for the planner (the bridge waits for its status every
+    step, so it must not fall behind a benchmark worker, but its decision steps take up
+    to ~20 ms on a city map and must not hold a core the MPC needs: the MPC preempts
+    it); none for the embedded LLM's planner (``planner`` "local"), which would keep its
+    core busy for seconds at real-time priority."""
+    if not priority:
+        return {}
+    out = {"bridge": priority, "mpc": priority}
+    if planner != "local" and priority > 1:
+        out.update(planner=priority - 1, mock_llm=priority - 1)
+    return out
+
+
 CPU_LATENCY_DEVICE = "/dev/cpu_dma_latency"
 
 
