@@ -28,7 +28,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
-from lmpc_msgs_py.cli import folder_arg
+from lmpc_msgs_py.cli import folder_arg, int_arg
 
 RUN_GRAPH = Path(__file__).resolve().parent / "run_graph.py"
 COLUMNS = ("startup_s", "episode_s", "rtf", "step_ms", "cycle_med", "cycle_p99", "cycle_max",
@@ -97,14 +97,12 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     ap.add_argument("--scene", default=None, help="a scene file instead of --scenario/--seed")
     ap.add_argument("--planner", default="rules")
     ap.add_argument("--clock", choices=("sync", "realtime"), default="sync")
-    ap.add_argument("--runs", type=int, default=3, help="runs per variant (default 3)")
+    ap.add_argument("--runs", type=int_arg(1), default=3, help="runs per variant (default 3)")
     ap.add_argument("--variants", nargs="+", default=["--executor events", "--executor single"],
                     help='extra run_graph.py arguments per variant, quoted ("" = defaults)')
     ap.add_argument("--domain-id", type=int, default=77, help="ROS domain of the runs")
     ap.add_argument("--out", type=folder_arg, default=None, help="folder for the run summaries")
     args = ap.parse_args(argv)
-    if args.runs < 1:
-        ap.error("--runs must be at least 1")
     for variant in args.variants:
         try:
             shlex.split(variant)

@@ -256,9 +256,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             ap.error(f"--replay-of {args.replay_of!r}: the method that recorded the logs, "
                      f"one of {', '.join(LLM_METHODS)}")
         replay = (str(args.replay_from.resolve()), args.replay_of)
-    if args.instruction is not None and instruction_error(args.instruction):
-        # the planner would cut it (in process) or drop it (the graph)
-        ap.error(f"--instruction: {instruction_error(args.instruction)}")
+    refused = None if args.instruction is None else instruction_error(args.instruction)
+    if refused:  # the planner would cut it (in process) or drop it (the graph)
+        ap.error(f"--instruction: {refused}")
     latency = resolve_latency(args.decision_latency, args.emergency_latency)
     work_dir = tempfile.mkdtemp(prefix="lmpc-bench-")
     jobs = [(m, f, s) for f in families for s in args.seeds for m in methods]

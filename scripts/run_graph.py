@@ -36,8 +36,8 @@ from pathlib import Path
 from typing import IO, Any, Optional, Sequence
 
 from lmpc_msgs_py.cli import file_arg, folder_arg
-from lmpc_msgs_py.scheduling import (DEFAULT_EXECUTOR, EXECUTOR_ENV, EXECUTORS, CpuLatencyHold,
-                                     node_priorities)
+from lmpc_msgs_py.scheduling import (DEFAULT_EXECUTOR, EXECUTOR_ENV, EXECUTORS, PRIORITY_ENV,
+                                     CpuLatencyHold, node_priorities)
 
 if __package__:  # lmpc_scripts.run_graph
     from . import graph_multi
@@ -376,8 +376,9 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     if args.instruction is not None:  # the planner node drops a text it refuses
         from lmpc_llm_planner.prompt import instruction_error
 
-        if instruction_error(args.instruction):
-            ap.error(f"--instruction: {instruction_error(args.instruction)}")
+        refused = instruction_error(args.instruction)
+        if refused:
+            ap.error(f"--instruction: {refused}")
     if args.planner_config is not None:
         from lmpc_llm_planner.config import PlannerConfigError, load_planner_config
 
@@ -549,7 +550,7 @@ def _run_single(args: argparse.Namespace, stops: StopSignals, run_dir: Path,
             elif split and name == "mpc":
                 cpu_set = set(cpus[:-1])
             priority = node_priorities(args.rt_priority, args.planner).get(name)
-            env = {"LMPC_RT_PRIORITY": str(priority)} if priority else {}  # scheduling.py
+            env = {PRIORITY_ENV: str(priority)} if priority else {}  # scheduling.py
             if args.executor:
                 env[EXECUTOR_ENV] = args.executor  # base_node.run_node
             child = graph.start_node(name, NODE_MODULES[name], params[name], cpus=cpu_set,
