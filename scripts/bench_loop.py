@@ -28,6 +28,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
+from lmpc_msgs_py.discovery import stay_local
 from lmpc_msgs_py.cli import folder_arg, int_arg
 
 RUN_GRAPH = Path(__file__).resolve().parent / "run_graph.py"
@@ -115,8 +116,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     args = parse_args(argv)
     out = args.out or Path(tempfile.mkdtemp(prefix="bench_loop-"))
     out.mkdir(parents=True, exist_ok=True)
-    env = dict(os.environ)
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env = stay_local(dict(os.environ))
     scene = ["--scene", args.scene] if args.scene \
         else ["--scenario", args.scenario, "--seed", str(args.seed)]
     runs: dict[str, list[dict[str, Any]]] = {v: [] for v in args.variants}

@@ -37,7 +37,9 @@ import time
 from dataclasses import dataclass
 from typing import Any, Optional, Sequence
 
-os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+from lmpc_msgs_py.discovery import stay_local
+
+stay_local()
 
 import rclpy  # noqa: E402
 from rclpy.executors import ExternalShutdownException  # noqa: E402

@@ -28,12 +28,13 @@ rclpy's time source subscribes it).
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
-os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+from lmpc_msgs_py.discovery import stay_local
+
+stay_local()
 
 import rclpy  # noqa: E402
 from rclpy.executors import ExternalShutdownException  # noqa: E402

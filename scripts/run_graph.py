@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import IO, Any, Optional, Sequence
 
 from lmpc_msgs_py.cli import file_arg, folder_arg
+from lmpc_msgs_py.discovery import stay_local
 from lmpc_msgs_py.scheduling import (DEFAULT_EXECUTOR, EXECUTOR_ENV, EXECUTORS, PRIORITY_ENV,
                                      CpuLatencyHold, node_priorities)
 
@@ -68,7 +69,7 @@ def ros_env(domain_id: Optional[int] = None) -> dict[str, str]:
     """The environment for the nodes: DDS discovery stays on this machine unless the
     user opened it up (README, multi-machine)."""
     env = dict(os.environ)
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    stay_local(env)
     if domain_id is not None:
         env["ROS_DOMAIN_ID"] = str(domain_id)
     env.setdefault("PYTHONUNBUFFERED", "1")
@@ -773,10 +774,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         f"solve_ms={summary['mpc_solve_ms']} latency_ms={summary['control_latency_ms']} "
         f"O.C.={metrics.get('overall_cost')} "
         f"run_dir={summary['run_dir']}")
-    _say(f"[run_graph] startup_wall={summary.get('startup_wall_s')}s "
-         f"episode_wall={summary.get('episode_wall_s')}s "
-         f"episode_rtf={summary.get('episode_real_time_factor')} "
-         f"attended_agents={summary.get('mpc_attended_agents')}")
+    if summary.get("startup_wall_s") is not None:  # the episode started
+        _say(f"[run_graph] startup_wall={summary['startup_wall_s']}s "
+             f"episode_wall={summary.get('episode_wall_s')}s "
+             f"episode_rtf={summary.get('episode_real_time_factor')} "
+             f"attended_agents={summary.get('mpc_attended_agents')}")
     if args.profile and summary.get("profile_ms"):
         _say(profile_table(summary["profile_ms"]))  # type: ignore[arg-type]
     if summary["detail"]:

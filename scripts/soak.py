@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 from lmpc_msgs_py.cli import folder_arg
+from lmpc_msgs_py.discovery import stay_local
 
 SCRIPTS = Path(__file__).resolve().parent
 RUN_GRAPH = SCRIPTS / "run_graph.py"
@@ -93,8 +94,7 @@ def run_episode(ep: Episode, *, args: argparse.Namespace, out_dir: Path) -> Epis
            "--planner", args.planner, "--clock", args.clock, "--run-dir", str(run_dir),
            "--summary-json", str(summary_path), "--domain-id", str(args.domain_id),
            "--max-time-s", str(args.max_time_s), "--quiet"]
-    env = dict(os.environ)
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env = stay_local(dict(os.environ))
     t0 = time.monotonic()
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True)

@@ -15,12 +15,13 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
-import os
 import sys
 import time
 from typing import Any, Callable, Optional, Sequence
 
-os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+from lmpc_msgs_py.discovery import stay_local
+
+stay_local()
 
 import rclpy  # noqa: E402
 from rclpy.node import Node  # noqa: E402

@@ -1,13 +1,12 @@
 """Fixtures for graph tests: each test gets its own ROS_DOMAIN_ID."""
 from __future__ import annotations
 
-import os
-
 import pytest
 
+from lmpc_msgs_py.discovery import stay_local
 from graphkit import next_domain_id
 
-os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+stay_local()
 
 
 @pytest.fixture

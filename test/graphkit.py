@@ -12,11 +12,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from lmpc_msgs_py.discovery import stay_local
+
 REPO = Path(__file__).resolve().parents[1]
 RUN_GRAPH = REPO / "scripts" / "run_graph.py"
 TOPICS = REPO / "scripts" / "topics.py"
 
-os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+stay_local()
 
 
 def scripts_module(name: str) -> Any:
@@ -112,7 +114,7 @@ FAULT_RELAY = REPO / "scripts" / "fault_relay.py"
 def node_env(domain_id: int, **extra: str) -> dict[str, str]:
     """Environment of a node process on ``domain_id`` (loopback discovery, unbuffered)."""
     env = dict(os.environ)
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    stay_local(env)
     env["ROS_DOMAIN_ID"] = str(domain_id)
     env["PYTHONUNBUFFERED"] = "1"
     env["RCUTILS_COLORIZED_OUTPUT"] = "0"

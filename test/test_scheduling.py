@@ -55,3 +55,19 @@ def test_the_planner_runs_one_priority_below_the_loop_and_never_with_the_llm() -
                                             "mock_llm": 19}
     assert node_priorities(20, "local") == {"bridge": 20, "mpc": 20}
     assert node_priorities(1, "rules") == {"bridge": 1, "mpc": 1}  # no priority 0
+
+
+def test_the_nodes_get_local_discovery_with_the_packaged_profile(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``run_graph.ros_env``: the nodes' environment keeps discovery on this machine with
+    the packaged Fast DDS profile (``lmpc_msgs_py.discovery``), or the user's own settings."""
+    from lmpc_msgs_py.discovery import LOCAL_PROFILE, PROFILE_ENVS, RANGE_ENV
+
+    for key in (RANGE_ENV, *PROFILE_ENVS, "RMW_IMPLEMENTATION"):
+        monkeypatch.delenv(key, raising=False)
+    env = run_graph.ros_env(7)
+    assert (env[RANGE_ENV], env["ROS_DOMAIN_ID"]) == ("LOCALHOST", "7")
+    assert env[PROFILE_ENVS[0]] == str(LOCAL_PROFILE) and LOCAL_PROFILE.is_file()
+    monkeypatch.setenv(RANGE_ENV, "SUBNET")
+    env = run_graph.ros_env(7)
+    assert env[RANGE_ENV] == "SUBNET" and PROFILE_ENVS[0] not in env

@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 import json
-import os
 import signal
 import sys
 import time
@@ -32,6 +31,7 @@ from std_msgs.msg import String
 from lmpc_msgs_py import qos as lmpc_qos
 from lmpc_msgs_py import topics
 from lmpc_msgs_py.codec import DecodeError, decode, encode
+from lmpc_msgs_py.discovery import stay_local
 from lmpc_msgs_py.freshness import SequenceGate, StaleMessage
 from lmpc_msgs_py.messages import LmpcMessage
 from lmpc_msgs_py.profiling import StageTimes
@@ -274,7 +274,7 @@ def run_node(factory: Callable[[], Node], args: Optional[list[str]] = None) -> i
     ``rclpy.try_shutdown()`` to end the spin with that code.
     """
     follow_supervisor()  # before the slow parts: a dead launcher must not leave us behind
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    stay_local()
     try:
         executor = executor_from_env()
     except ValueError as exc:
