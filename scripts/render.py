@@ -5,6 +5,7 @@
     render.py run RUN_DIR [--out run.png] [--gif run.gif]
     render.py run --family usi --seed 0 --method lmpc-rules [--max-time-s 60] --out run.png
     render.py bars RESULTS_DIR                      -> RESULTS_DIR/oc_bars.png
+    render.py multi RUN_DIR [--out multi.png] [--gif multi.gif]   (run_graph.py --egos N)
     render.py multi --family narrow --seed 0 --method mpc --coordination central \
         --out strip.png [--gif encounter.gif]         (a multi-ego run, issue 18)
 
@@ -112,7 +113,9 @@ def _parse(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     bars.add_argument("results_dir", type=Path)
     bars.add_argument("--out", type=file_arg, default=None, help="default RESULTS_DIR/oc_bars.png")
     mu = sub.add_parser("multi", help="a multi-ego run: strip of instants, optional GIF")
-    mu.add_argument("--family", default="narrow")
+    mu.add_argument("run_dir", type=Path, nargs="?",
+                    help="a run folder of run_graph.py --egos N (else an in-process run)")
+    mu.add_argument("--family", default=None, help="in-process run (default narrow)")
     mu.add_argument("--seed", type=int, default=0)
     mu.add_argument("--method", choices=METHODS, default="mpc")
     mu.add_argument("--coordination", choices=MULTI_MODES, default="central")
@@ -124,6 +127,10 @@ def _parse(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     mu.add_argument("--every-k", type=int, default=4, help="GIF: every k-th step")
     mu.add_argument("--work-dir", type=Path, default=None, help="scene cache folder")
     args = ap.parse_args(argv)
+    if args.command == "multi" and args.run_dir is not None and args.family is not None:
+        ap.error("multi: give either RUN_DIR or --family (with --seed / --method)")
+    if args.command == "multi" and args.run_dir is None and args.family is None:
+        args.family = "narrow"
     if args.command == "run" and (args.run_dir is None) == (args.family is None):
         ap.error("run: give either RUN_DIR or --family (with --seed / --method)")
     if args.command == "run" and args.instruction is not None and args.run_dir is not None:
@@ -155,10 +162,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             if args.gif:
                 print(render_gif(run, out=args.gif, every_k=args.every_k))
         elif args.command == "multi":
-            work_dir = args.work_dir or Path(tempfile.mkdtemp(prefix="lmpc-render-"))
-            data = run_multi(args.family, args.seed, args.method, args.coordination,
-                             work_dir=work_dir, max_time_s=args.max_time_s)
-            out = args.out or Path(f"{args.family}_{args.seed}_{args.coordination}_multi.png")
+            if args.run_dir is not None:
+                data = render.load_multi_run(args.run_dir, work_dir=args.work_dir,
+                                             shade=shaded_sections)
+                out = args.out or args.run_dir / "multi.png"
+            else:
+                work_dir = args.work_dir or Path(tempfile.mkdtemp(prefix="lmpc-render-"))
+                data = run_multi(args.family, args.seed, args.method, args.coordination,
+                                 work_dir=work_dir, max_time_s=args.max_time_s)
+                out = args.out or Path(
+                    f"{args.family}_{args.seed}_{args.coordination}_multi.png")
             print(render.render_multi_strip(data, out=out, instants=args.instants))
             if args.gif:
                 print(render.render_multi_gif(data, out=args.gif, every_k=args.every_k))

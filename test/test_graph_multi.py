@@ -92,6 +92,32 @@ def test_narrow_both_egos_through_and_as_in_process(tmp_path: Path, domain_id: i
         # happens; under the full CI run of 2026-12-04 it did (the earlier CI runs
         # passed; reached times still within the tolerance above), so a few are allowed
         assert all(st["assembly_wait_expired"] <= 3 for st in stats.values()), stats
+    if mode == "central":
+        _assert_drawn_from_the_run_folder(Path(s["run_dir"]), s, tmp_path)
+
+
+def _assert_drawn_from_the_run_folder(run_dir: Path, summary: dict[str, Any],
+                                      tmp_path: Path) -> None:
+    """``render.py multi RUN_DIR`` draws the graph's own run folder (every ego's record,
+    its route from the rebuilt scene, the one-lane section shaded); ``render.py run`` on
+    it says which command to use instead of "no 'record'"."""
+    from lmpc_bridge import render
+
+    data = render.load_multi_run(run_dir, shade=scripts_module("render").shaded_sections)
+    assert data.ego_ids == EGOS and data.family == "narrow" and data.seed == SEED
+    for eid in EGOS:
+        assert data.outcomes[eid] == "reached"
+        assert abs(data.records[eid].reached_at_s - summary["egos"][eid]["reached_at_s"]) < 1e-6
+        assert len(data.routes[eid]) > 2
+    assert data.routes["ego_1"] != data.routes["ego_2"] and data.shaded_lanes
+    assert data.method == "lmpc-rules (graph)" and data.mode == "central"
+    render_py = scripts_module("render")
+    out = tmp_path / "strip.png"
+    assert render_py.main(["multi", str(run_dir), "--out", str(out)]) == 0
+    assert out.stat().st_size > 10_000
+    done = subprocess.run([sys.executable, str(RUN_GRAPH.parent / "render.py"), "run",
+                           str(run_dir)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and f"render.py multi {run_dir}" in done.stderr, done.stderr
 
 
 def _start_graph(tmp_path: Path, domain_id: int, *extra: str) -> subprocess.Popen[str]:

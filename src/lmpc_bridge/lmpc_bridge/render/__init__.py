@@ -36,6 +36,7 @@ from lmpc_bridge.render.figures import key_moments, render_run, render_scene  # 
 from lmpc_bridge.render.gif import MAX_GIF_BYTES, render_gif  # noqa: E402
 from lmpc_bridge.render.multi import (  # noqa: E402
     MultiRunData,
+    load_multi_run,
     multi_run_data,
     render_multi_gif,
     render_multi_strip,
@@ -51,6 +52,6 @@ from lmpc_bridge.render.runs import (  # noqa: E402
 )
 
 __all__ = ["MAX_GIF_BYTES", "DecisionInfo", "MultiRunData", "RenderError", "RunData",
-           "key_moments", "load_run", "multi_run_data", "plot_oc_bars", "read_decision_log",
-           "render_gif", "render_multi_gif", "render_multi_strip", "render_run",
-           "render_scene", "run_in_process", "save_run"]
+           "key_moments", "load_multi_run", "load_run", "multi_run_data", "plot_oc_bars",
+           "read_decision_log", "render_gif", "render_multi_gif", "render_multi_strip",
+           "render_run", "render_scene", "run_in_process", "save_run"]

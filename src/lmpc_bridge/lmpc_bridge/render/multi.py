@@ -16,10 +16,12 @@ only paint it.
 from __future__ import annotations
 
 import functools
+import json
 import math
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional, cast
+from typing import Any, Callable, Optional, cast
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -42,7 +44,7 @@ from lmpc_bridge.render.draw import (
 )
 from lmpc_bridge.render.geometry import box_corners, lane_polygon, nose
 from lmpc_bridge.render.gif import save_gif_under
-from lmpc_bridge.render.runs import RenderError
+from lmpc_bridge.render.runs import _GRAPH_PLANNERS, RenderError
 
 EGO_COLOURS = ("#1f5fd6", "#e67e22", "#8e44ad", "#16a085")
 """ego_1, ego_2, ... (cycled beyond four)."""
@@ -110,6 +112,62 @@ def multi_run_data(result: Any, *, method: str = "", mode: str = "",
         map=result.maps[ids[0]], routes=routes, method=method, mode=mode,
         shaded_lanes=tuple(shaded_lanes), net_file=net_file,
         outcomes={e.ego_id: e.outcome for e in result.egos})
+
+
+def load_multi_run(run_dir: Path, *, work_dir: Optional[Path] = None,
+                   shade: Optional[Callable[[dict[str, MapSnapshot]], tuple[str, ...]]] = None
+                   ) -> MultiRunData:
+    """Read a multi-ego graph run folder (``run_graph.py --egos N``: an ``episode.json``
+    with one record per ego) and rebuild each ego's map from the scene (from the bridge's
+    cache in ``run_dir/scene`` when present). ``shade``: the maps -> the lanes to shade
+    (the caller's, as for :func:`multi_run_data`). The graph keeps no coordination marks,
+    so no ego is drawn as yielding or holding; an in-process run (``render.py multi
+    --family``) has them."""
+    from lmpc_bridge.mapping import build_map, read_net
+    from lmpc_bridge.multi_scene import ego_scene, ego_specs
+    from lmpc_bridge.scenarios import SceneError, build_scene
+
+    episode_path = Path(run_dir) / "episode.json"
+    if not episode_path.is_file():
+        raise RenderError(f"{episode_path} not found: pass a run folder written by "
+                          "run_graph.py --egos N")
+    episode = json.loads(episode_path.read_text(encoding="utf-8"))
+    raw = episode.get("records")
+    if not isinstance(raw, dict) or not raw:
+        what = "a single-ego run: draw it with render.py run" if "record" in episode \
+            else "no per-ego 'records' (episode finished abnormally?)"
+        raise RenderError(f"{episode_path}: {what}")
+    records = {eid: EpisodeRecord.model_validate(rec) for eid, rec in raw.items()}
+    family, seed = str(episode.get("scenario", "")), int(episode.get("seed", 0))
+    cache = Path(run_dir) / "scene"
+    if work_dir is None:
+        work_dir = cache if cache.is_dir() else Path(tempfile.mkdtemp(prefix="lmpc-render-"))
+    try:
+        scene = build_scene(family, seed, work_dir=work_dir)
+        net = read_net(scene.net_file)
+        maps = {spec.ego_id: build_map(ego_scene(scene, spec), net=net)[0]
+                for spec in ego_specs(scene)}
+    except SceneError as exc:
+        raise RenderError(f"cannot rebuild scene {family}/{seed}: {exc}") from exc
+    missing = sorted(set(records) - set(maps))
+    if missing:
+        raise RenderError(f"{episode_path}: egos {missing} are not in scene {family}/{seed}")
+    routes = {}
+    for eid in records:
+        lanes = {ln.id: ln for ln in maps[eid].lanes}
+        routes[eid] = tuple(p for lid in maps[eid].ego_route if lid in lanes
+                            for p in lanes[lid].centerline)
+    summary_path = Path(run_dir) / "summary.json"
+    summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
+    planner = str(summary.get("planner", ""))
+    egos = episode.get("egos") or {}
+    return MultiRunData(
+        family=family, seed=seed, records=records, marks={eid: {} for eid in records},
+        map=maps[sorted(records)[0]], routes=routes,
+        method=_GRAPH_PLANNERS.get(planner, planner), mode=str(summary.get("coordination") or ""),
+        shaded_lanes=shade(maps) if shade is not None else (),
+        net_file=Path(scene.net_file),
+        outcomes={eid: str((egos.get(eid) or {}).get("outcome", "")) for eid in records})
 
 
 @dataclass(frozen=True)

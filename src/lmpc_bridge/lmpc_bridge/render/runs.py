@@ -157,6 +157,10 @@ def load_run(run_dir: Path, *, work_dir: Optional[Path] = None) -> RunData:
                           "run_graph.py (or render.py run --save-run)")
     episode = json.loads(episode_path.read_text(encoding="utf-8"))
     if "record" not in episode:
+        if isinstance(episode.get("records"), dict) and episode["records"]:
+            raise RenderError(f"{episode_path} is a multi-ego run "
+                              f"({', '.join(sorted(episode['records']))}): draw it with "
+                              f"render.py multi {run_dir}")
         raise RenderError(f"{episode_path} has no 'record' (episode finished abnormally?)")
     record = EpisodeRecord.model_validate(episode["record"])
     if not record.steps:
