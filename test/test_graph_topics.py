@@ -60,6 +60,12 @@ def test_topics_types_payloads_and_rates(tmp_path: Path, domain_id: int) -> None
 
     node.create_subscription(String, "/lmpc/decision", collect("decision", Decision), keep_all)
     node.create_subscription(String, "/lmpc/control", collect("control", Control), keep_all)
+    from nav_msgs.msg import Odometry
+
+    odom: list[Odometry] = []
+    # the bridge builds the odometry mirror only while someone subscribes (as the MPC's
+    # RViz mirrors): this subscriber gets it
+    node.create_subscription(Odometry, "/lmpc/ego/odom", odom.append, keep_all)
     seen: dict[str, list[str]] = {}
     lister: subprocess.Popen[str] | None = None
     # The observer joins the domain first, so it sees every endpoint from the start.
@@ -99,6 +105,7 @@ def test_topics_types_payloads_and_rates(tmp_path: Path, domain_id: int) -> None
 
     controls = received["control"]
     decisions = received["decision"]
+    assert len(odom) > 50 and odom[-1].header.frame_id == "map", len(odom)
     span_s = controls[-1].stamp_s - controls[0].stamp_s
     assert span_s > 5.0
     control_hz = (len({c.stamp_s for c in controls}) - 1) / span_s

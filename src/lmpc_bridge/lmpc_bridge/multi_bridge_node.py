@@ -189,7 +189,8 @@ class MultiBridgeNode(BridgeBase):
             ego.pub_ego.publish(obs.ego)
             ego.pub_agents.publish(obs.agents)
             ego.pub_signals.publish(obs.signals)
-            ego.pub_odom.publish(odometry(obs.ego, ego.eid))  # type: ignore[attr-defined]
+            if ego.pub_odom.get_subscription_count():  # type: ignore[attr-defined]
+                ego.pub_odom.publish(odometry(obs.ego, ego.eid))  # type: ignore[attr-defined]
         self.waiting_since = time.monotonic()
         if t >= self.next_progress_s:
             self.next_progress_s = t + self.cfg.progress_period_s
