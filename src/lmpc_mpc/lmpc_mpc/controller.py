@@ -34,7 +34,9 @@ from lmpc_mpc.config import MpcConfig
 from lmpc_mpc.mirrors import OWN_SUFFIX
 from lmpc_mpc.prediction import baseline_candidate
 from lmpc_mpc.reference import (
+    REFERENCE_DS_M,
     ReferencePathError,
+    _path_geometry,
     _Polyline,
     bezier_points,
     candidates_for_pose,
@@ -213,8 +215,9 @@ class MpcController(CrossingRules):
         self._lane_change_refused: dict[str, tuple[str, ...]] = {}
         """Decision id -> agents its lane change was refused for (``_lane_change_kept``)."""
         self._zone_tail: dict[str, np.ndarray] = {}
-        self._timing: tuple = (np.zeros((2, 2)), 0.0, None)
-        """(this step's path, its speed cap, the timing profile ``_time_along`` built)."""
+        self._timing: tuple = (None, 0.0, None)
+        """(this step's path geometry, its speed cap, the timing profile ``_time_along``
+        built)."""
         """Obstacle id -> its forecast beyond the horizon (``_zone_forecast``), this step."""
         self._route_s: Optional[tuple[int, float, float]] = None
         """(id of the map, sim time, arc length) of the ego's last route progress: the
@@ -491,7 +494,9 @@ class MpcController(CrossingRules):
             seen = {a.id for a in obs.agents.agents}
             self._agent_curves = {k: v for k, v in self._agent_curves.items() if k in seen}
             self._hedge_until = {k: v for k, v in self._hedge_until.items() if k in seen}
-        line = _Polyline.of(path)
+        # once a step: the reference's resampling, also the crossing rule's timing
+        geometry = _path_geometry(path, REFERENCE_DS_M)
+        line = geometry[0]
         # the lead limits only ask "is the agent on our path, and where": a polyline
         # through every 3rd point (~1 m apart) is within ~2 cm of the curve and makes
         # the projection of every predicted agent position 3x cheaper
@@ -503,7 +508,7 @@ class MpcController(CrossingRules):
         if check:
             reattended = self._reattend_stale(obs, coarse, agents[:slots], preds, obstacles,
                                               speeds)
-        self._timing = (path, v_limit, None)  # physical: not a decision's braking cap
+        self._timing = (geometry, v_limit, None)  # physical: not a decision's braking cap
         s_limit = self._lead_limits(coarse, obstacles, speeds)
         if self._beside:
             obstacles = [replace(ob, beside=True) if i in self._beside else ob
@@ -538,7 +543,8 @@ class MpcController(CrossingRules):
         ref = timed_reference(path, v0_mps=ego.v_mps, v_max_mps=min(v_limit, ref_v_cap),
                               a_max_mps2=ref_acc, a_dec_mps2=ref_dec,
                               a_lat_max_mps2=cfg.reference_lat_accel_mps2, horizon=n,
-                              dt_s=cfg.dt_s, stop_at_m=stop_at, s_limit_m=s_limit)
+                              dt_s=cfg.dt_s, stop_at_m=stop_at, s_limit_m=s_limit,
+                              geometry=geometry)
         if decision is not None:
             # the ego stands / drives turned far off its path (after a dodge in a
             # junction): the decision's steer guidance was for another pose, and the

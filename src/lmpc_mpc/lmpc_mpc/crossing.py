@@ -25,7 +25,7 @@ from lmpc_mpc.config import MpcConfig
 from lmpc_mpc.mirrors import OWN_SUFFIX
 from lmpc_mpc.prediction import forecast
 from lmpc_mpc.reference import (
-    _path_geometry,
+    REFERENCE_DS_M,
     _Polyline,
     braking_envelope,
     candidates_for_pose,
@@ -281,13 +281,13 @@ class CrossingRules:
         judged at the approach speed (13 m/s) "cleared" an oncoming car's zone in 1.8 s;
         slowing for the turn it took ~4 s, and the ego turned in front of the car (usi 117
         at a 2.5 s latency, dev seeds)."""
-        path, v_max, prof = self._timing
+        geometry, v_max, prof = self._timing
         if s_m <= 0.0:
             return 0.0
         if prof is None:
             cfg = self.config
-            ds = 0.5
-            _, s, _, kappa, _ = _path_geometry(path, ds)
+            ds = REFERENCE_DS_M
+            _, s, _, kappa, _ = geometry
             v_cap = np.minimum(v_max, np.sqrt(cfg.reference_lat_accel_mps2
                                               / np.maximum(np.abs(kappa), 1e-6)))
             v_b = braking_envelope(v_cap, dec_mps2=2.0 * cfg.reference_accel_mps2, ds_m=ds)
@@ -301,7 +301,7 @@ class CrossingRules:
                 t_cum[i] = t
                 v = v_next
             prof = (s, t_cum, v)
-            self._timing = (path, v_max, prof)
+            self._timing = (geometry, v_max, prof)
         s, t_cum, v_end = prof
         if s_m <= s[-1]:
             return float(np.interp(s_m, s, t_cum))

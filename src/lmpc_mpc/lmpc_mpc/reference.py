@@ -592,8 +592,13 @@ class TimedReference:
     """The dense (M, 2) geometric path the states lie on."""
 
 
-def _path_geometry(points: np.ndarray, ds_m: float
-                   ) -> tuple[_Polyline, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+REFERENCE_DS_M = 0.5
+"""Spacing of the dense resampling of the reference path (``timed_reference``'s default)."""
+PathGeometry = tuple[_Polyline, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""``_path_geometry``'s (line, arc lengths, yaw, curvature, points)."""
+
+
+def _path_geometry(points: np.ndarray, ds_m: float) -> PathGeometry:
     """Dense resampling of a path: (line, arc lengths, yaw, curvature, points)."""
     line = _Polyline.of(points)
     length = max(line.length_m, ds_m)
@@ -624,8 +629,12 @@ def braking_envelope(v_cap_mps: np.ndarray, *, dec_mps2: float, ds_m: float) -> 
 def timed_reference(points: np.ndarray, *, v0_mps: float, v_max_mps: float, a_max_mps2: float,
                     a_lat_max_mps2: float, horizon: int, dt_s: float,
                     a_dec_mps2: float | None = None, stop_at_m: float | None = None,
-                    s_limit_m: np.ndarray | None = None, ds_m: float = 0.5) -> TimedReference:
+                    s_limit_m: np.ndarray | None = None, ds_m: float = REFERENCE_DS_M,
+                    geometry: PathGeometry | None = None) -> TimedReference:
     """Time-parameterise a path; see :func:`time_parameterize`. Also returns curvature.
+
+    ``geometry``: ``_path_geometry(points, ds_m)`` if the caller has it already (the
+    controller computes it once a step for this and its crossing rule's timing).
 
     ``stop_at_m``: arc length where the reference must come to rest (red light).
     ``a_dec_mps2``: deceleration the profile plans with (default ``2 * a_max``).
@@ -638,7 +647,8 @@ def timed_reference(points: np.ndarray, *, v0_mps: float, v_max_mps: float, a_ma
     if not np.all(np.isfinite(pts)):
         raise ReferencePathError("path contains NaN or infinite coordinates")
     dec = a_dec_mps2 if a_dec_mps2 is not None else 2.0 * a_max_mps2
-    line, s, yaw, kappa, path_xy = _path_geometry(pts, ds_m)
+    line, s, yaw, kappa, path_xy = geometry if geometry is not None \
+        else _path_geometry(pts, ds_m)
     v_cap = np.minimum(v_max_mps, np.sqrt(a_lat_max_mps2 / np.maximum(np.abs(kappa), 1e-6)))
     if stop_at_m is not None:
         v_cap = np.where(s >= stop_at_m, 0.0, v_cap)
