@@ -112,3 +112,26 @@ def test_a_single_ego_family_is_refused(tmp_path: Path) -> None:
         render_cli.run_multi("usi", 0, "mpc", "central", work_dir=tmp_path)
     with pytest.raises(RenderError, match="coordination"):
         render_cli.run_multi("narrow", 0, "mpc", "sometimes", work_dir=tmp_path)
+
+
+def test_a_run_folder_that_is_not_a_multi_ego_run_is_named(tmp_path: Path) -> None:
+    """``render.py multi RUN_DIR`` (``load_multi_run``) on a folder it cannot draw says why
+    in one line; ``render.py run`` on a multi-ego folder names ``render.py multi``. The
+    drawing of a real multi-ego graph folder: ``test_graph_multi.py``."""
+    import json
+
+    from lmpc_bridge.render import load_run
+
+    with pytest.raises(RenderError, match="not found"):
+        multi.load_multi_run(tmp_path)
+    (tmp_path / "episode.json").write_text(json.dumps({"record": {}}))
+    with pytest.raises(RenderError, match="a single-ego run: draw it with render.py run"):
+        multi.load_multi_run(tmp_path)
+    (tmp_path / "episode.json").write_text(json.dumps(
+        {"scenario": "narrow", "seed": SEED, "records": {"ego_1": {"steps": "none"}}}))
+    with pytest.raises(RenderError, match="not an episode record"):
+        multi.load_multi_run(tmp_path)
+    with pytest.raises(RenderError, match=f"render.py multi {tmp_path}"):
+        load_run(tmp_path)
+    with pytest.raises(SystemExit):  # RUN_DIR and --family: argparse refuses the pair
+        render_cli.main(["multi", str(tmp_path), "--family", "narrow"])

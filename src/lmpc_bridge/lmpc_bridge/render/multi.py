@@ -25,6 +25,7 @@ from typing import Any, Callable, Optional, cast
 
 import matplotlib.pyplot as plt
 import numpy as np
+from pydantic import ValidationError
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import PolyCollection
@@ -100,18 +101,23 @@ def multi_run_data(result: Any, *, method: str = "", mode: str = "",
         raise RenderError("the multi-ego result has no records (run it with this version "
                           "of run_multi_episode)")
     ids = sorted(result.records)
-    routes = {}
-    for eid in ids:
-        mp = result.maps[eid]
-        lanes = {ln.id: ln for ln in mp.lanes}
-        routes[eid] = tuple(p for lid in mp.ego_route if lid in lanes
-                            for p in lanes[lid].centerline)
     return MultiRunData(
         family=result.family, seed=result.seed, records=dict(result.records),
         marks={eid: {m.step: m for m in result.marks.get(eid, ())} for eid in ids},
-        map=result.maps[ids[0]], routes=routes, method=method, mode=mode,
+        map=result.maps[ids[0]], routes=_routes(result.maps, ids), method=method, mode=mode,
         shaded_lanes=tuple(shaded_lanes), net_file=net_file,
         outcomes={e.ego_id: e.outcome for e in result.egos})
+
+
+def _routes(maps: dict[str, MapSnapshot], ids: list[str]
+            ) -> dict[str, tuple[tuple[float, float], ...]]:
+    """Per ego, its route through its map as one polyline."""
+    routes = {}
+    for eid in ids:
+        lanes = {ln.id: ln for ln in maps[eid].lanes}
+        routes[eid] = tuple(p for lid in maps[eid].ego_route if lid in lanes
+                            for p in lanes[lid].centerline)
+    return routes
 
 
 def load_multi_run(run_dir: Path, *, work_dir: Optional[Path] = None,
@@ -137,7 +143,11 @@ def load_multi_run(run_dir: Path, *, work_dir: Optional[Path] = None,
         what = "a single-ego run: draw it with render.py run" if "record" in episode \
             else "no per-ego 'records' (episode finished abnormally?)"
         raise RenderError(f"{episode_path}: {what}")
-    records = {eid: EpisodeRecord.model_validate(rec) for eid, rec in raw.items()}
+    try:
+        records = {eid: EpisodeRecord.model_validate(rec) for eid, rec in raw.items()}
+    except ValidationError as exc:
+        raise RenderError(f"{episode_path}: a record is not an episode record "
+                          f"({str(exc).splitlines()[0]})") from exc
     family, seed = str(episode.get("scenario", "")), int(episode.get("seed", 0))
     cache = Path(run_dir) / "scene"
     if work_dir is None:
@@ -152,18 +162,13 @@ def load_multi_run(run_dir: Path, *, work_dir: Optional[Path] = None,
     missing = sorted(set(records) - set(maps))
     if missing:
         raise RenderError(f"{episode_path}: egos {missing} are not in scene {family}/{seed}")
-    routes = {}
-    for eid in records:
-        lanes = {ln.id: ln for ln in maps[eid].lanes}
-        routes[eid] = tuple(p for lid in maps[eid].ego_route if lid in lanes
-                            for p in lanes[lid].centerline)
     summary_path = Path(run_dir) / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
     planner = str(summary.get("planner", ""))
     egos = episode.get("egos") or {}
     return MultiRunData(
         family=family, seed=seed, records=records, marks={eid: {} for eid in records},
-        map=maps[sorted(records)[0]], routes=routes,
+        map=maps[sorted(records)[0]], routes=_routes(maps, sorted(records)),
         method=_GRAPH_PLANNERS.get(planner, planner), mode=str(summary.get("coordination") or ""),
         shaded_lanes=shade(maps) if shade is not None else (),
         net_file=Path(scene.net_file),
