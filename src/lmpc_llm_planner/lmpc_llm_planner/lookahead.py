@@ -27,9 +27,9 @@ import math
 from typing import Optional
 
 import numpy as np
-from lmpc_mpc.controller import stop_distance_m
 from lmpc_mpc.prediction import forecast
 from lmpc_mpc.reference import _Polyline, lane_at, route_path, route_progress
+from lmpc_mpc.stop_line import stop_distance_m
 
 from lmpc_msgs_py.messages import Agent, EgoState, LinkSignal, MapSnapshot
 from lmpc_msgs_py.observation import Observation

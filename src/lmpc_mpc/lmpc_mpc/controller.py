@@ -52,17 +52,12 @@ from lmpc_mpc.reference import (
 from lmpc_mpc.lead_in import lead_in, turned_away
 from lmpc_mpc.route_guard import RouteLeave, leaves_route
 from lmpc_mpc.solver import MpcProblem, MpcSolver, Obstacle
-from lmpc_mpc.crossing import (
-    _COMFORT_DECEL_MPS2,
-    _HEDGE_APART_M,
-    CrossingRules,
-)
+from lmpc_mpc.crossing import _HEDGE_APART_M, CrossingRules
 from lmpc_mpc.stale import StaleRecord, StaleVerdict
+from lmpc_mpc.stop_line import STOP_MARGIN_M as _STOP_MARGIN_M
+from lmpc_mpc.stop_line import stop_distance_m
 
-_STOP_STATES = ("r", "y", "u")
 _TIME_EPS_S = 1e-6
-_STOP_MARGIN_M = 1.0
-"""The box front stops this far before a red light's stop line."""
 _DECISION_MEMORY = 8
 _Points = tuple[tuple[float, float], ...]
 _CANDIDATE_REUSE_S = 0.5
@@ -129,21 +124,6 @@ _REENTRY_RAD = math.radians(30.0)
 steer bias is replaced by the path's own (``MpcController._problem``)."""
 _SHARP_ON_ROUTE_M = 3.0
 """The sharp-turn reference is for an ego on its route: farther off, the usual one."""
-
-
-def stop_distance_m(obs: Observation, *, length_m: float) -> Optional[float]:
-    """How far the ego's box centre may still go before the next signal link when the MPC
-    stops it there (red, or yellow it can still stop for comfortably), or None."""
-    links = sorted(obs.signals.links, key=lambda lk: lk.distance_m)
-    if not links:
-        return None
-    nxt = links[0]
-    if nxt.state not in _STOP_STATES:
-        return None
-    v = obs.ego.v_mps
-    if nxt.state == "y" and nxt.distance_m < v * v / (2.0 * _COMFORT_DECEL_MPS2):
-        return None  # too close to stop comfortably on yellow: go on
-    return max(0.0, nxt.distance_m - 0.5 * length_m - _STOP_MARGIN_M)
 
 
 def rebased_control_points(control_points: Sequence[Sequence[float]], x_m: float,

@@ -34,6 +34,7 @@ from lmpc_mpc.reference import (
 )
 from lmpc_mpc.solver import Obstacle
 from lmpc_mpc.stale import StaleRecord, StaleVerdict, lane_change_gap, on_path, reach_m
+from lmpc_mpc.stop_line import COMFORT_DECEL_MPS2 as _COMFORT_DECEL_MPS2
 
 _STALE_LOG_DECISIONS = 256
 """The stale check's record is kept for this many decisions (the newest)."""
@@ -73,8 +74,6 @@ as before (usi 121 at 5 s, usi 14 at 2.5 s: held inside the junction, it left it
 on restarting; the car it had committed in front of braked for it) [m/s]."""
 _LANE_CHANGE_AHEAD_M = 25.0
 """A decision's curve that is in another lane this far ahead is a lane change."""
-_COMFORT_DECEL_MPS2 = 3.0
-"""A yellow light is run through when stopping would need more than this."""
 
 
 RING_SUFFIX = "#ring"
