@@ -772,13 +772,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         f"wall={summary['wall_time_s']:.1f}s rtf={summary['real_time_factor']} "
         f"decisions={summary['decisions']} fallbacks={summary['fallbacks']} "
         f"solve_ms={summary['mpc_solve_ms']} latency_ms={summary['control_latency_ms']} "
-        f"O.C.={metrics.get('overall_cost')} "
-        f"run_dir={summary['run_dir']}")
+        + (f"joint O.C.={summary['joint_oc']} " if "joint_oc" in summary  # several egos
+           else f"O.C.={metrics.get('overall_cost')} ")
+        + f"run_dir={summary['run_dir']}")
     if summary.get("startup_wall_s") is not None:  # the episode started
         _say(f"[run_graph] startup_wall={summary['startup_wall_s']}s "
              f"episode_wall={summary.get('episode_wall_s')}s "
-             f"episode_rtf={summary.get('episode_real_time_factor')} "
-             f"attended_agents={summary.get('mpc_attended_agents')}")
+             f"episode_rtf={summary.get('episode_real_time_factor')}"
+             + (f" attended_agents={summary['mpc_attended_agents']}"
+                if summary.get("mpc_attended_agents") else ""))  # per ego with several
     if args.profile and summary.get("profile_ms"):
         _say(profile_table(summary["profile_ms"]))  # type: ignore[arg-type]
     if summary["detail"]:

@@ -92,6 +92,8 @@ def test_narrow_both_egos_through_and_as_in_process(tmp_path: Path, domain_id: i
         # happens; under the full CI run of 2026-12-04 it did (the earlier CI runs
         # passed; reached times still within the tolerance above), so a few are allowed
         assert all(st["assembly_wait_expired"] <= 3 for st in stats.values()), stats
+    # the summary line names the joint O.C. (a single ego's O.C. is not defined here)
+    assert f"joint O.C.={s['joint_oc']}" in run.output and "O.C.=None" not in run.output
     if mode == "central":
         _assert_drawn_from_the_run_folder(Path(s["run_dir"]), s, tmp_path)
 
