@@ -42,6 +42,7 @@ from lmpc_mpc.reference import (
     candidates_for_pose,
     closest_heading,
     lane_at,
+    reference_path_points,
     route_candidate,
     route_path,
     route_progress,
@@ -475,7 +476,8 @@ class MpcController(CrossingRules):
             self._agent_curves = {k: v for k, v in self._agent_curves.items() if k in seen}
             self._hedge_until = {k: v for k, v in self._hedge_until.items() if k in seen}
         # once a step: the reference's resampling, also the crossing rule's timing
-        geometry = _path_geometry(path, REFERENCE_DS_M)
+        # (checked first: a bad path is "no reference: <what is wrong>" and a brake)
+        geometry = _path_geometry(reference_path_points(path), REFERENCE_DS_M)
         line = geometry[0]
         # the lead limits only ask "is the agent on our path, and where": a polyline
         # through every 3rd point (~1 m apart) is within ~2 cm of the curve and makes

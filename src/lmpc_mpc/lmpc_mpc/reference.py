@@ -598,6 +598,17 @@ PathGeometry = tuple[_Polyline, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 """``_path_geometry``'s (line, arc lengths, yaw, curvature, points)."""
 
 
+def reference_path_points(points: np.ndarray) -> np.ndarray:
+    """``points`` as an (m >= 2, 2) float array of finite coordinates, else
+    ``ReferencePathError`` naming what is wrong (the controller brakes on it)."""
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
+        raise ReferencePathError(f"path must be (m>=2, 2), got shape {pts.shape}")
+    if not np.all(np.isfinite(pts)):
+        raise ReferencePathError("path contains NaN or infinite coordinates")
+    return pts
+
+
 def _path_geometry(points: np.ndarray, ds_m: float) -> PathGeometry:
     """Dense resampling of a path: (line, arc lengths, yaw, curvature, points)."""
     line = _Polyline.of(points)
@@ -641,11 +652,7 @@ def timed_reference(points: np.ndarray, *, v0_mps: float, v_max_mps: float, a_ma
     ``s_limit_m``: (horizon+1,) largest arc length allowed at step k (a lead vehicle's
     predicted position minus a gap); the profile brakes for it with ``a_dec``.
     """
-    pts = np.asarray(points, dtype=float)
-    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
-        raise ReferencePathError(f"path must be (m>=2, 2), got shape {pts.shape}")
-    if not np.all(np.isfinite(pts)):
-        raise ReferencePathError("path contains NaN or infinite coordinates")
+    pts = reference_path_points(points)
     dec = a_dec_mps2 if a_dec_mps2 is not None else 2.0 * a_max_mps2
     line, s, yaw, kappa, path_xy = geometry if geometry is not None \
         else _path_geometry(pts, ds_m)

@@ -196,3 +196,25 @@ def test_the_lane_lookup_near_a_point_finds_what_scanning_every_lane_finds() -> 
             assert got == scan_all(idx, float(x), float(y), float(yaw))
             found += got is not None
     assert 600 < found < 1200  # most points were on a lane, some on none
+
+
+def test_a_bad_reference_path_is_named_and_its_geometry_is_the_one_used() -> None:
+    """``reference_path_points`` refuses what ``timed_reference`` refuses, by name, before
+    the controller resamples a path; a resampling passed in (``geometry``) gives the same
+    reference as the one computed inside, bit for bit."""
+    from lmpc_mpc.reference import (REFERENCE_DS_M, ReferencePathError, _path_geometry,
+                                    reference_path_points, timed_reference)
+
+    with pytest.raises(ReferencePathError, match="NaN or infinite"):
+        reference_path_points(np.array([[0.0, 0.0], [np.nan, 1.0]]))
+    with pytest.raises(ReferencePathError, match=r"m>=2, 2"):
+        reference_path_points(np.array([[0.0, 0.0]]))
+    xs = np.linspace(0.0, 60.0, 121)
+    path = np.column_stack([xs, 0.02 * xs ** 1.5])
+    kw = dict(v0_mps=8.0, v_max_mps=13.9, a_max_mps2=1.5, a_lat_max_mps2=2.0, horizon=30,
+              dt_s=0.1)
+    inside = timed_reference(path, **kw)
+    passed = timed_reference(path, geometry=_path_geometry(reference_path_points(path),
+                                                           REFERENCE_DS_M), **kw)
+    assert np.array_equal(inside.states, passed.states)
+    assert np.array_equal(inside.curvature_1pm, passed.curvature_1pm)
