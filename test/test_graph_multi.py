@@ -105,7 +105,8 @@ def _assert_drawn_from_the_run_folder(run_dir: Path, summary: dict[str, Any],
     it says which command to use instead of "no 'record'"."""
     from lmpc_bridge import render
 
-    data = render.load_multi_run(run_dir, shade=scripts_module("render").shaded_sections)
+    render_py = scripts_module("render")
+    data = render.load_multi_run(run_dir, shade=render_py.shaded_sections)
     assert data.ego_ids == EGOS and data.family == "narrow" and data.seed == SEED
     for eid in EGOS:
         assert data.outcomes[eid] == "reached"
@@ -113,7 +114,6 @@ def _assert_drawn_from_the_run_folder(run_dir: Path, summary: dict[str, Any],
         assert len(data.routes[eid]) > 2
     assert data.routes["ego_1"] != data.routes["ego_2"] and data.shaded_lanes
     assert data.method == "lmpc-rules (graph)" and data.mode == "central"
-    render_py = scripts_module("render")
     out = tmp_path / "strip.png"
     assert render_py.main(["multi", str(run_dir), "--out", str(out)]) == 0
     assert out.stat().st_size > 10_000
