@@ -22,7 +22,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, Optional, TypeVar
+from typing import Any, Literal, Optional, TypeVar
 
 import rclpy
 from builtin_interfaces.msg import Time as TimeMsg
@@ -322,6 +322,13 @@ class BridgeBase(LmpcNode):
     def sim_dt_s(self) -> float:
         raise NotImplementedError
 
+    @staticmethod
+    def publish_odom_mirror(pub: Any, ego: EgoState, child_frame: str) -> None:
+        """The ego's Odometry mirror for ROS tools, built only when someone listens (~0.07
+        ms a step), as the MPC's RViz mirrors; a subscriber gets it from the next step on."""
+        if pub.get_subscription_count():
+            pub.publish(odometry(ego, child_frame))
+
 
 class BridgeNode(BridgeBase):
     def __init__(self) -> None:
@@ -418,10 +425,7 @@ class BridgeNode(BridgeBase):
             self.pub_episode.publish(self.sim.status())
 
     def _publish_odom(self, ego: EgoState) -> None:
-        # a mirror for ROS tools: built only when someone listens (~0.07 ms a step), as the
-        # MPC's RViz mirrors; a subscriber gets it from the next step on
-        if self.pub_odom.get_subscription_count():
-            self.pub_odom.publish(odometry(ego, "ego"))
+        self.publish_odom_mirror(self.pub_odom, ego, "ego")
 
     def _control_for_current_step(self) -> Optional[Control]:
         return control_for_step(self.inputs.latest_control, self.sim.time_s, self.cfg)

@@ -45,7 +45,6 @@ from lmpc_bridge.bridge_node import (
     _stamp,
     _StepTiming,
     control_for_step,
-    odometry,
 )
 from lmpc_bridge.multi_sim import MultiSumoSim
 from lmpc_bridge.scenarios import SceneError
@@ -189,8 +188,7 @@ class MultiBridgeNode(BridgeBase):
             ego.pub_ego.publish(obs.ego)
             ego.pub_agents.publish(obs.agents)
             ego.pub_signals.publish(obs.signals)
-            if ego.pub_odom.get_subscription_count():  # type: ignore[attr-defined]
-                ego.pub_odom.publish(odometry(obs.ego, ego.eid))  # type: ignore[attr-defined]
+            self.publish_odom_mirror(ego.pub_odom, obs.ego, ego.eid)
         self.waiting_since = time.monotonic()
         if t >= self.next_progress_s:
             self.next_progress_s = t + self.cfg.progress_period_s

@@ -178,6 +178,7 @@ class MpcController(CrossingRules):
         self._ego_v_mps = 0.0
         self._now_s = 0.0
         self._committed: dict[str, float] = {}
+        """Crossing agents the ego decided to pass ahead of -> sim time of the decision."""
         self._floor_until: dict[str, float] = {}
         """Agent id -> sim time until which the per-step safety floor keeps it attended."""
         self._hedge_until: dict[str, float] = {}
@@ -196,14 +197,13 @@ class MpcController(CrossingRules):
         self._lane_change_refused: dict[str, tuple[str, ...]] = {}
         """Decision id -> agents its lane change was refused for (``_lane_change_kept``)."""
         self._zone_tail: dict[str, np.ndarray] = {}
+        """Obstacle id -> its forecast beyond the horizon (``_zone_forecast``), this step."""
         self._timing: tuple = (None, 0.0, None)
         """(this step's path geometry, its speed cap, the timing profile ``_time_along``
         built)."""
-        """Obstacle id -> its forecast beyond the horizon (``_zone_forecast``), this step."""
         self._route_s: Optional[tuple[int, float, float]] = None
         """(id of the map, sim time, arc length) of the ego's last route progress: the
         baseline reference starts there or later (monotone, see ``route_progress``)."""
-        """Crossing agents the ego decided to pass ahead of -> sim time of the decision."""
         self.reference_path: Optional[np.ndarray] = None
         """(M, 2) the reference path of the last step (for the visual mirror)."""
         self.reference_states: Optional[np.ndarray] = None
