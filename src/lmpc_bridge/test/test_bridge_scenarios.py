@@ -68,3 +68,23 @@ def test_some_seeds_leave_a_gap_and_some_do_not(scene_dir: Path) -> None:
     gaps = [float(build_scene("usi", s, work_dir=scene_dir).params["max_oncoming_gap_s"])
             for s in range(10)]
     assert min(gaps) < 5.0 < max(gaps)
+
+
+@pytest.mark.parametrize("seed, vid", [(112, "leader"), (113, "bike0")])
+def test_si_background_starts_beside_the_ego(seed: int, vid: str, tmp_path: Path) -> None:
+    """Two development scenes SUMO refused parts of: si 112's turning leader, too close to
+    stop for the turn's never-green ('g') link at the ego's speed, was dropped with an
+    error (the scene ran without it); si 113's bike started 0.7 m behind the ego's box on
+    its lane and SUMO refused the ego. Both start complete now."""
+    import libsumo
+
+    from lmpc_bridge.sim import SumoSim
+
+    sim = SumoSim(work_dir=tmp_path)
+    try:
+        sim.reset("si", seed)
+        present = set(libsumo.vehicle.getIDList())
+        assert {"ego", vid} <= present, present
+        assert libsumo.vehicle.getSpeed(vid) > 0.0
+    finally:
+        sim.close()

@@ -62,6 +62,10 @@ def select_candidate(family: str, seed: int, *, sample: Callable[[np.random.Gene
         c += 1
 
 
+BG_DECEL_MPS2 = 4.5
+"""The background drivers' (and bikes') ``decel``."""
+
+
 def driver_vtype(type_id: str, *, aggressiveness: float, vclass: str = "passenger",
                  length_m: float = 4.5, width_m: float = 1.8, max_speed_mps: float | None = None,
                  color: str = "0.6,0.6,0.9", speed_factor: float | None = None) -> str:
@@ -74,7 +78,8 @@ def driver_vtype(type_id: str, *, aggressiveness: float, vclass: str = "passenge
     return "  <vType " + xml_attrs(
         id=type_id, vClass=vclass, length=length_m, width=width_m,
         maxSpeed=max_speed_mps,
-        accel=2.6 + 0.8 * g if vclass != "bicycle" else 1.2, decel=4.5, emergencyDecel=9.0,
+        accel=2.6 + 0.8 * g if vclass != "bicycle" else 1.2, decel=BG_DECEL_MPS2,
+        emergencyDecel=9.0,
         sigma=0.5 - 0.3 * g, tau=1.0 - 0.4 * g, minGap=2.5 - 1.0 * g,
         speedFactor=(1.0 + 0.15 * g) if speed_factor is None else speed_factor, speedDev=0.05,
         impatience=0.5 * g, jmTimegapMinor=1.0 - 0.5 * g,

@@ -42,6 +42,8 @@ import numpy as np
 
 from lmpc_bridge.scenarios.base import Scene, SceneError, register_family, run_netconvert
 from lmpc_bridge.scenarios.common import (
+    BG_DECEL_MPS2,
+    EGO_LENGTH_M,
     LANE_WIDTH_M,
     arrival_window,
     driver_vtype,
@@ -60,6 +62,18 @@ SIDEWALK_WIDTH_M = 2.0
 TARGET_INTO_EXIT_M = 35.0
 TARGET_RADIUS_M = 5.0
 PED_SPEED_MPS = 1.3
+BIKE_SPEED_MPS = 5.0
+BIKE_LENGTH_M = 1.8
+MIN_ARRIVAL_DIST_M = 12.0
+"""A background car or bike starts at least this far before the stop line."""
+BIKE_CLEAR_BEHIND_M = 3.0
+"""A bike on the ego's lane starts at least this far behind the ego's box (SUMO's
+follower check at insertion; ``_bike_arrival_s``)."""
+BIKE_CLEAR_AHEAD_M = 1.0
+"""... or this far ahead of it (closer: the boxes overlap; SUMO refuses the ego)."""
+LEADER_STOP_FRACTION = 0.9
+"""A turning leader too close to stop from the ego's speed starts at this fraction of the
+speed it can stop from (``_leader_depart_speed``)."""
 _EXIT_ARM = {"right": 1, "straight": 2, "left": 3}
 
 
@@ -131,6 +145,35 @@ def _check(p: SiParams) -> str | None:
     return None
 
 
+def _bike_arrival_s(p: SiParams) -> float:
+    """The bike's arrival at the stop line, unless it would start on the ego's lane within
+    ``BIKE_CLEAR_BEHIND_M`` behind the ego's box or ``BIKE_CLEAR_AHEAD_M`` ahead of it:
+    SUMO refuses the ego's insertion then (dev seed 113: 0.7 m behind). Such a bike starts
+    just that far behind (or ahead of) the ego instead, arriving later (or earlier)."""
+    assert p.bike is not None
+    arm, arrival = p.bike
+    if arm != 0 or (p.lanes != 1 and p.movement != "right"):
+        return arrival  # another arm, or the ego starts on the left lane, the bike right
+    behind_front_m = max(BIKE_SPEED_MPS * arrival, MIN_ARRIVAL_DIST_M) - p.ego_dist_m
+    if behind_front_m > 0.0 and behind_front_m - EGO_LENGTH_M < BIKE_CLEAR_BEHIND_M:
+        return (p.ego_dist_m + EGO_LENGTH_M + BIKE_CLEAR_BEHIND_M) / BIKE_SPEED_MPS
+    if behind_front_m <= 0.0 and -behind_front_m - BIKE_LENGTH_M < BIKE_CLEAR_AHEAD_M:
+        return (p.ego_dist_m - BIKE_LENGTH_M - BIKE_CLEAR_AHEAD_M) / BIKE_SPEED_MPS
+    return arrival
+
+
+def _leader_depart_speed(p: SiParams) -> float:
+    """The leader starts at the ego's speed, unless it turns and could not stop before
+    the stop line at its ``decel`` from that speed: SUMO then refuses to insert it at
+    all (a turn's link never shows 'G' with crossings; dev seed 112 ran without its
+    leader). Then it starts at ``LEADER_STOP_FRACTION`` of the speed it can stop from."""
+    dist_m = p.ego_dist_m - (p.leader_gap_m or 0.0)
+    v = p.ego_speed_mps
+    if p.movement == "straight" or v * v / (2.0 * BG_DECEL_MPS2) <= dist_m:
+        return v
+    return LEADER_STOP_FRACTION * math.sqrt(2.0 * BG_DECEL_MPS2 * max(dist_m, 0.0))
+
+
 def _write_net(p: SiParams, scene_dir: Path) -> Path:
     rot = math.radians(p.rot_deg)
     nodes = [{"id": "C", "x": 0.0, "y": 0.0, "type": "traffic_light"}]
@@ -197,7 +240,7 @@ def generate_si(seed: int, scene_dir: Path) -> Scene:
         if lane is None:
             lane = lanes[int(rng.integers(0, len(lanes)))].getIndex()
         length = float(net.getEdge(f"A{arm}in").getLength())
-        dist = max(speed * arrival_s, 12.0)
+        dist = max(speed * arrival_s, MIN_ARRIVAL_DIST_M)
         if dist <= length - 5.0:
             depart, pos = 0.0, length - dist
         else:
@@ -218,14 +261,16 @@ def generate_si(seed: int, scene_dir: Path) -> Scene:
         arm, arrival = p.bike
         if arm == 0 and p.leader_gap_m is not None:
             arm = 2  # a bike in the leader's lane would block the leader's insertion
-        add_arrival("bike0", f"r_{arm}s", arm, arrival, 5.0, type_id="bike",
+        else:
+            arrival = _bike_arrival_s(p)
+        add_arrival("bike0", f"r_{arm}s", arm, arrival, BIKE_SPEED_MPS, type_id="bike",
                     lane=_road_lanes(net.getEdge(f"A{arm}in"))[0].getIndex())
     if p.leader_gap_m is not None:
         ego_code = move_code[p.movement]
         vehicles.append((0.0, vehicle_line(
             "leader", type_id="bg", route=f"r_0{ego_code}", depart_s=0.0,
             lane=ego_lane.getIndex(), pos_m=approach_len - p.ego_dist_m + p.leader_gap_m,
-            speed_mps=p.ego_speed_mps)))
+            speed_mps=_leader_depart_speed(p))))
     persons: list[tuple[float, str]] = []
     exit_len = float(net.getEdge(f"A{exit_arm}in").getLength())
     for i, arrival in enumerate(p.pedestrians):
@@ -239,8 +284,9 @@ def generate_si(seed: int, scene_dir: Path) -> Scene:
     route_file = scene_dir / "si.rou.xml"
     write_routes(route_file, vtypes=[
         driver_vtype("bg", aggressiveness=p.aggressiveness),
-        driver_vtype("bike", aggressiveness=p.aggressiveness, vclass="bicycle", length_m=1.8,
-                     width_m=0.65, max_speed_mps=6.0, speed_factor=1.0, color="0.2,0.8,0.2"),
+        driver_vtype("bike", aggressiveness=p.aggressiveness, vclass="bicycle",
+                     length_m=BIKE_LENGTH_M, width_m=0.65, max_speed_mps=6.0, speed_factor=1.0,
+                     color="0.2,0.8,0.2"),
     ], routes=routes, vehicles=vehicles, persons=persons)
 
     exit_lanes = _road_lanes(net.getEdge(f"A{exit_arm}out"))
