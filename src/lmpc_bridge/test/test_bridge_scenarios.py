@@ -75,7 +75,8 @@ def test_si_background_starts_beside_the_ego(seed: int, vid: str, tmp_path: Path
     """Two development scenes SUMO refused parts of: si 112's turning leader, too close to
     stop for the turn's never-green ('g') link at the ego's speed, was dropped with an
     error (the scene ran without it); si 113's bike started 0.7 m behind the ego's box on
-    its lane and SUMO refused the ego. Both start complete now."""
+    its lane and SUMO refused the ego. Both start complete now, the leader at the ego's
+    speed."""
     import libsumo
 
     from lmpc_bridge.sim import SumoSim
@@ -86,5 +87,8 @@ def test_si_background_starts_beside_the_ego(seed: int, vid: str, tmp_path: Path
         present = set(libsumo.vehicle.getIDList())
         assert {"ego", vid} <= present, present
         assert libsumo.vehicle.getSpeed(vid) > 0.0
+        if vid == "leader":
+            assert libsumo.vehicle.getSpeed(vid) == pytest.approx(sim.pose.v_mps,
+                                                                  abs=0.5)
     finally:
         sim.close()

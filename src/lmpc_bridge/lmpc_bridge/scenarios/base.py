@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Callable, Iterable, Optional, Protocol
 from xml.sax.saxutils import quoteattr
 
-GENERATOR_VERSION = 6
+GENERATOR_VERSION = 7
 """Bump when a generator changes; cached scenes of another version are rebuilt."""
 
 DEFAULT_MAX_TIME_S = 200.0

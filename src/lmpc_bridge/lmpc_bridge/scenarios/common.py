@@ -95,16 +95,17 @@ def ego_vtype() -> str:
 
 def vehicle_line(vid: str, *, type_id: str, route: str, depart_s: float, lane: int | str,
                  pos_m: float, speed_mps: float, stops: Sequence[dict[str, Any]] = (),
-                 speed_factor: float | None = None) -> str:
+                 speed_factor: float | None = None, insertion_checks: str | None = None) -> str:
     """A ``<vehicle>`` element (with optional ``<stop>`` children).
 
     ``speed_factor`` fixes this driver's desired speed as a multiple of the lane
     limit (SUMO otherwise draws it from the vType's speedFactor distribution):
-    slow traffic stays slow instead of accelerating to the limit.
+    slow traffic stays slow instead of accelerating to the limit. ``insertion_checks``:
+    SUMO's ``insertionChecks`` (default: all).
     """
     head = "  <vehicle " + xml_attrs(id=vid, type=type_id, route=route, depart=depart_s,
                                      departLane=lane, departPos=pos_m, departSpeed=speed_mps,
-                                     speedFactor=speed_factor)
+                                     speedFactor=speed_factor, insertionChecks=insertion_checks)
     if not stops:
         return head + "/>"
     inner = "".join(f"\n    <stop {xml_attrs(**s)}/>" for s in stops)

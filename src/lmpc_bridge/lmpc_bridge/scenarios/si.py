@@ -42,7 +42,6 @@ import numpy as np
 
 from lmpc_bridge.scenarios.base import Scene, SceneError, register_family, run_netconvert
 from lmpc_bridge.scenarios.common import (
-    BG_DECEL_MPS2,
     EGO_LENGTH_M,
     LANE_WIDTH_M,
     arrival_window,
@@ -69,11 +68,12 @@ MIN_ARRIVAL_DIST_M = 12.0
 BIKE_CLEAR_BEHIND_M = 3.0
 """A bike on the ego's lane starts at least this far behind the ego's box (SUMO's
 follower check at insertion; ``_bike_arrival_s``)."""
-BIKE_CLEAR_AHEAD_M = 1.0
-"""... or this far ahead of it (closer: the boxes overlap; SUMO refuses the ego)."""
-LEADER_STOP_FRACTION = 0.9
-"""A turning leader too close to stop from the ego's speed starts at this fraction of the
-speed it can stop from (``_leader_depart_speed``)."""
+BIKE_CLEAR_AHEAD_M = 2.5
+"""... and at least this far ahead of it (the ego's vType keeps SUMO's default minGap,
+2.5 m: closer, SUMO refuses the ego even standing)."""
+LEADER_TURN_CHECKS = ("leaderGap followerGap stop arrivalSpeed oncomingTrain speedLimit "
+                      "pedestrian bidi laneChange")
+"""SUMO's ``insertionChecks`` of a turning leader: all but ``junction``."""
 _EXIT_ARM = {"right": 1, "straight": 2, "left": 3}
 
 
@@ -160,18 +160,6 @@ def _bike_arrival_s(p: SiParams) -> float:
     if behind_front_m <= 0.0 and -behind_front_m - BIKE_LENGTH_M < BIKE_CLEAR_AHEAD_M:
         return (p.ego_dist_m - BIKE_LENGTH_M - BIKE_CLEAR_AHEAD_M) / BIKE_SPEED_MPS
     return arrival
-
-
-def _leader_depart_speed(p: SiParams) -> float:
-    """The leader starts at the ego's speed, unless it turns and could not stop before
-    the stop line at its ``decel`` from that speed: SUMO then refuses to insert it at
-    all (a turn's link never shows 'G' with crossings; dev seed 112 ran without its
-    leader). Then it starts at ``LEADER_STOP_FRACTION`` of the speed it can stop from."""
-    dist_m = p.ego_dist_m - (p.leader_gap_m or 0.0)
-    v = p.ego_speed_mps
-    if p.movement == "straight" or v * v / (2.0 * BG_DECEL_MPS2) <= dist_m:
-        return v
-    return LEADER_STOP_FRACTION * math.sqrt(2.0 * BG_DECEL_MPS2 * max(dist_m, 0.0))
 
 
 def _write_net(p: SiParams, scene_dir: Path) -> Path:
@@ -270,7 +258,12 @@ def generate_si(seed: int, scene_dir: Path) -> Scene:
         vehicles.append((0.0, vehicle_line(
             "leader", type_id="bg", route=f"r_0{ego_code}", depart_s=0.0,
             lane=ego_lane.getIndex(), pos_m=approach_len - p.ego_dist_m + p.leader_gap_m,
-            speed_mps=_leader_depart_speed(p))))
+            speed_mps=p.ego_speed_mps,
+            # a turn's link never shows 'G' (crossings, oncoming traffic): SUMO's junction
+            # check refuses a leader that could not stop before it from this speed and
+            # drops it with an error (dev seed 112 ran without its leader); it checks all
+            # else. Where the check passed, the insertion is the same as before.
+            insertion_checks=None if p.movement == "straight" else LEADER_TURN_CHECKS)))
     persons: list[tuple[float, str]] = []
     exit_len = float(net.getEdge(f"A{exit_arm}in").getLength())
     for i, arrival in enumerate(p.pedestrians):
