@@ -18,10 +18,11 @@ libsumo runs one simulation per process: one ``SumoSim`` per process, and
 from __future__ import annotations
 
 import math
+import xml.etree.ElementTree as ET
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Sequence
 
 import libsumo
 import traci.constants as tc
@@ -122,6 +123,21 @@ class StepInfo:
     collided_with: str | None = None
 
 
+def refused_at_start(route_file: Path, *, present: Sequence[str],
+                     pending: Sequence[str]) -> tuple[str, ...]:
+    """The vehicles of ``route_file`` departing at 0 that are neither in the simulation
+    nor waiting to be inserted after its first step: SUMO refused them with an error
+    (e.g. a leader it finds unable to stop before a never-green link) and the scene runs
+    without them. Unreadable files: ()."""
+    try:
+        root = ET.parse(route_file).getroot()
+    except (OSError, ET.ParseError):
+        return ()
+    seen = set(present) | set(pending)
+    return tuple(v.get("id", "") for v in root.iter("vehicle")
+                 if v.get("depart") in ("0", "0.0", "0.000") and v.get("id") not in seen)
+
+
 class SumoSim:
     """One SUMO episode at a time, the ego integrated by the bridge (see module docstring)."""
 
@@ -163,6 +179,7 @@ class SumoSim:
         self._shadow = EgoShadow(EGO_ID)
         self._lane_shapes: dict[str, LaneShape] = {}
         self._foes_query_ok = True
+        self._refused_at_start: tuple[str, ...] = ()
         self._route_edges: set[str] | None = None
         self._tls_links: dict[tuple[str, int | None], list[tuple[Any, Any]]] | None = None
         self._rng_carry: dict[str, int] | None = {}
@@ -260,6 +277,9 @@ class SumoSim:
         if EGO_ID not in t.vehicle.getIDList():
             raise SimError(f"scene {family}/{seed}: SUMO did not insert the ego (blocked)")
         self._t0_s = float(t.simulation.getTime())  # our t = 0 is SUMO's first step
+        self._refused_at_start = refused_at_start(
+            scene.route_file, present=t.vehicle.getIDList(),
+            pending=t.simulation.getPendingVehicles()) if not warmup_steps else ()
         self._subscribe()
         net = read_net(scene.net_file)
         self._map, self._route = build_map(scene, net=net)
@@ -672,10 +692,13 @@ class SumoSim:
     def traffic_warnings(self) -> tuple[str, ...]:
         """External scenes: a line when no background vehicle departs in the simulated
         window, and one when fewer vehicles entered so far than the traffic files declare
-        (:mod:`lmpc_bridge.demand`); () for the families' scenes. Call while SUMO runs."""
+        (:mod:`lmpc_bridge.demand`); for the families' scenes, a line naming the vehicles
+        the scene starts with that SUMO refused at once (``refused_at_start``). Call while
+        SUMO runs."""
         scene = self.scene
         if "scene_file" not in scene.params:
-            return ()
+            return tuple(f"SUMO refused {vid}, a vehicle the scene starts with (it never "
+                         "entered)" for vid in self._refused_at_start)
         window = traffic.Window(begin_s=float(scene.params.get("begin_s", 0.0)),
                                 warmup_s=float(scene.params.get("warmup_s", 0.0)),
                                 max_time_s=self._max_time_s)

@@ -1,6 +1,7 @@
 """Scene generation: deterministic per seed, different across seeds, cached, interacting."""
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -90,5 +91,34 @@ def test_si_background_starts_beside_the_ego(seed: int, vid: str, tmp_path: Path
         if vid == "leader":
             assert libsumo.vehicle.getSpeed(vid) == pytest.approx(sim.pose.v_mps,
                                                                   abs=0.5)
+    finally:
+        sim.close()
+
+
+def test_a_vehicle_sumo_refuses_at_start_is_reported(tmp_path: Path) -> None:
+    """si 112 as generator version 6 wrote it (the turning leader with all of SUMO's
+    insertion checks): SUMO drops the leader with an error on stderr; the sim names it
+    in ``traffic_warnings`` (the benchmark's detail column, the bridge's log), where it
+    used to run the scene without it silently."""
+    import libsumo
+
+    from lmpc_bridge.sim import SumoSim
+
+    scene = build_scene("si", 112, work_dir=tmp_path)
+    routes = scene.route_file.read_text()
+    assert "insertionChecks" in routes
+    scene.route_file.write_text(re.sub(r' insertionChecks="[^"]*"', "", routes))
+    sim = SumoSim(work_dir=tmp_path)  # the cached scene, with the edited route file
+    try:
+        sim.reset("si", 112)
+        assert "leader" not in libsumo.vehicle.getIDList()
+        assert sim.traffic_warnings() == (
+            "SUMO refused leader, a vehicle the scene starts with (it never entered)",)
+    finally:
+        sim.close()
+    sim = SumoSim(work_dir=tmp_path / "fresh")
+    try:
+        sim.reset("si", 112)
+        assert sim.traffic_warnings() == ()
     finally:
         sim.close()
