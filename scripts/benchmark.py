@@ -71,7 +71,7 @@ from lmpc_bridge.evaluation.style import (
     INSTRUCTION_SETS,
     SITUATION_SETS,
     STYLE_COLUMNS,
-    direction_share,
+    direction_shares,
     style_summary,
     style_table_md,
 )
@@ -409,7 +409,7 @@ def run_instruction_set(args: argparse.Namespace, jobs: list[tuple[str, str, int
     for method in sorted({r["method"] for r in all_rows}):
         mine = [r for r in all_rows if r["method"] == method]
         table = situation_table_md(situation_summary(mine)) if situational else \
-            style_table_md(style_summary(mine), direction_share(mine))
+            style_table_md(style_summary(mine), direction_shares(mine))
         parts.append(f"### {method}\n\n{table}")
     head = ("Instruction set " + args.instruction_set + ": " + "; ".join(
         f"{s}: {t!r}" if t else f"{s}: no instruction" for s, t in phrasings) + "\n\n")

@@ -15,8 +15,11 @@ from lmpc_bridge.evaluation.style import (
     INSTRUCTION_SETS,
     SITUATION_SETS,
     direction_share,
+    direction_shares,
+    junction_pets,
     style_metrics,
     style_summary,
+    style_table_md,
 )
 from lmpc_bridge.record import EpisodeRecord, NearbyVehicle, StepRecord
 from lmpc_bridge.runner import run_episode
@@ -60,6 +63,41 @@ def test_the_style_figures_of_a_record() -> None:
     assert m["junction_gap_m"] == 9.0  # the crossing car, not the one ahead in its lane
 
 
+def test_the_junction_pet_is_the_time_between_two_paths_crossing() -> None:
+    """The ego drives east through a junction (x 0..10 m on ':j_0', 1 m per step, at x = 5
+    when t = 1.0 s): a car driving north crosses x = 5 at t = 3.0 (PET 2 s); a car on the
+    ego's own path (same heading) and a pedestrian crossing with the ego do not count; a
+    car driving south that crossed x = 2 at t = 0.2, half a second before the ego got
+    there, makes the episode's figure 0.5 s (whoever passes first)."""
+    def other(vid: str, kind: str, k: int, t_pass: float, x: float, yaw: float) -> tuple:
+        dt = 0.1 * k - t_pass  # on the ego's path at x when t = t_pass, 10 m/s along yaw
+        return (NearbyVehicle(id=vid, kind=kind, x_m=x + 10 * dt * math.cos(yaw),
+                              y_m=10 * dt * math.sin(yaw), yaw_rad=yaw, v_mps=10.0,
+                              v_max_mps=10.0, a_mps2=0.0, gap_m=5.0),)
+
+    def record(with_south: bool) -> EpisodeRecord:
+        steps = []
+        for k in range(80):
+            x = float(k - 5)
+            near = other("north", "car", k, 3.0, 5.0, math.pi / 2) \
+                + other("follow", "car", k, 1.5, 5.0, 0.0) \
+                + other("ped", "pedestrian", k, 1.0, 5.0, -math.pi / 2)
+            if with_south:
+                near += other("south", "car", k, 0.2, 2.0, -math.pi / 2)
+            steps.append(StepRecord(step=k, t_s=0.1 * k, x_m=x, y_m=0.0, yaw_rad=0.0,
+                                    v_mps=10.0, a_mps2=0.0, steer_rad=0.0,
+                                    lane_id=":j_0" if 0.0 <= x <= 10.0 else "e_0",
+                                    nearby=near))
+        return EpisodeRecord(family="x", seed=0, dt_s=0.1, max_time_s=10.0,
+                             target_center=(0.0, 0.0), target_radius_m=1.0, steps=tuple(steps))
+
+    assert junction_pets(record(False)) == {"north": pytest.approx(2.0)}
+    assert style_metrics(record(False))["junction_pet_s"] == pytest.approx(2.0)
+    assert junction_pets(record(True)) == {"north": pytest.approx(2.0),
+                                           "south": pytest.approx(0.5)}
+    assert style_metrics(record(True))["junction_pet_s"] == pytest.approx(0.5)
+
+
 def test_the_direction_share_counts_scenes_where_the_style_changes_the_time() -> None:
     rows = []
     for seed, (c, n, a) in {1: (30, 25, 20), 2: (20, 20, 20), 3: (20, 25, 30)}.items():
@@ -68,6 +106,16 @@ def test_the_direction_share_counts_scenes_where_the_style_changes_the_time() ->
                          "collision": 0, "fail": 0})
     share = direction_share(rows)["f"]
     assert share == {"matter": 2, "follow": 1, "share": 0.5}
+    # the table's shares: per figure, only figures some scene has a value of
+    for r in rows:
+        r["junction_pet_s"] = {"conservative": 4.0, "normal": 3.0, "aggressive": 2.0}[
+            r["style"]] if r["seed"] == 1 else math.nan
+    shares = direction_shares(rows)
+    assert set(shares) == {"time_s", "junction_pet_s"}
+    assert shares["junction_pet_s"]["f"] == {"matter": 1, "follow": 1, "share": 1.0}
+    table = style_table_md(style_summary(rows), shares)
+    assert "| F | junction_pet_s | 1 | 1 | 100% |" in table
+    assert "| F | aggressive | 3 | 0 | 0 |" in table and "2.0 (1)" in table
     assert style_summary(rows)["f"]["aggressive"]["time_s"] == pytest.approx(70 / 3, abs=1e-3)
 
 

@@ -16,7 +16,15 @@ Definitions (all from :class:`lmpc_bridge.record.EpisodeRecord`, one record per 
   ``:`` lane) the smallest gap to a vehicle whose heading differs from the ego's by more
   than ``CROSS_HEADING_RAD`` (crossing, merging, oncoming traffic; not the leader or the
   queue) and that moves (``v >= MOVING_MPS``); the smallest over the entries (nan: no
-  such vehicle on any entry).
+  such vehicle on any entry). It counts vehicles that have just left as well as those
+  arriving, and is a distance; the next figure is the time gap the ego accepted:
+- ``junction_pet_s``: the post-encroachment time at the ego's junction crossings (the
+  smallest over them; nan: no conflict): for each other vehicle (not a pedestrian) whose
+  recorded path comes within ``PET_CROSS_M`` of the ego's path on a junction's
+  internal (``:``) lanes at a heading more than ``CROSS_HEADING_RAD`` off the ego's,
+  the time between the ego and it passing that point (closest recorded centre points,
+  0.1 s samples, while within sensing range). Approximation: centre points, not boxes,
+  and a vehicle seen only on one side of the point does not count.
 """
 from __future__ import annotations
 
@@ -24,13 +32,18 @@ import math
 import statistics
 from typing import Any, Optional
 
+import numpy as np
+
 from lmpc_bridge.evaluation.table import finite, markdown, mean_finite
 from lmpc_bridge.record import EpisodeRecord
 
 CROSS_HEADING_RAD = math.radians(30.0)
 MOVING_MPS = 0.5
+PET_CROSS_M = 2.0
+"""Two recorded centre points this close: the paths cross there (``junction_pet_s``;
+at 14 m/s consecutive samples are 1.4 m apart)."""
 STYLE_COLUMNS = ("mean_gap_m", "min_gap_m", "peak_decel_mps2", "peak_jerk_mps3", "lc_gap_m",
-                 "lc_changes", "junction_gap_m")
+                 "lc_changes", "junction_gap_m", "junction_pet_s")
 STYLES = ("conservative", "normal", "aggressive")
 
 INSTRUCTION_SETS: dict[str, tuple[tuple[str, Optional[str]], ...]] = {
@@ -93,6 +106,7 @@ def style_metrics(record: EpisodeRecord) -> dict[str, Any]:
                         and _angle(n.yaw_rad - cur.yaw_rad) > CROSS_HEADING_RAD]
             if crossing:
                 jn_gaps.append(min(crossing))
+    pets = junction_pets(record)
     return {
         "mean_gap_m": round(statistics.fmean(nearest), 3) if nearest else math.nan,
         "min_gap_m": round(min(nearest), 3) if nearest else math.nan,
@@ -101,7 +115,31 @@ def style_metrics(record: EpisodeRecord) -> dict[str, Any]:
         "lc_gap_m": round(min(lc_gaps), 3) if lc_gaps else math.nan,
         "lc_changes": changes,
         "junction_gap_m": round(min(jn_gaps), 3) if jn_gaps else math.nan,
+        "junction_pet_s": round(min(pets.values()), 3) if pets else math.nan,
     }
+
+
+def junction_pets(record: EpisodeRecord) -> dict[str, float]:
+    """Per other vehicle whose path crosses the ego's on a junction, the post-encroachment
+    time there (s; see the module doc, ``junction_pet_s``)."""
+    steps = record.steps
+    on_jn = [s for s in steps if s.lane_id is not None and s.lane_id.startswith(":")]
+    if not on_jn:
+        return {}
+    ego = np.array([(s.t_s, s.x_m, s.y_m, s.yaw_rad) for s in on_jn])
+    seen: dict[str, list[tuple[float, float, float, float]]] = {}
+    for s in steps:
+        for n in s.nearby:
+            if n.kind != "pedestrian":
+                seen.setdefault(n.id, []).append((s.t_s, n.x_m, n.y_m, n.yaw_rad))
+    out: dict[str, float] = {}
+    for vid, track in seen.items():
+        o = np.array(track)
+        d = np.hypot(ego[:, None, 1] - o[None, :, 1], ego[:, None, 2] - o[None, :, 2])
+        i, j = np.unravel_index(int(np.argmin(d)), d.shape)
+        if d[i, j] <= PET_CROSS_M and _angle(o[j, 3] - ego[i, 3]) > CROSS_HEADING_RAD:
+            out[vid] = abs(float(o[j, 0] - ego[i, 0]))
+    return out
 
 
 def style_summary(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
@@ -119,10 +157,10 @@ def style_summary(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, A
                 "runs": len(sel), "collisions": sum(int(r["collision"]) for r in sel),
                 "fails": sum(int(r["fail"]) for r in sel)}
             for k in ("time_s", "overall_cost", "mean_gap_m", "min_gap_m", "peak_decel_mps2",
-                      "peak_jerk_mps3", "lc_gap_m", "junction_gap_m"):
+                      "peak_jerk_mps3", "lc_gap_m", "junction_gap_m", "junction_pet_s"):
                 agg[k] = round(mean_finite(r.get(k) for r in sel), 3)
-            agg["lc_gap_m_n"] = sum(1 for r in sel if finite(r.get("lc_gap_m")))
-            agg["junction_gap_m_n"] = sum(1 for r in sel if finite(r.get("junction_gap_m")))
+            for k in ("lc_gap_m", "junction_gap_m", "junction_pet_s"):
+                agg[f"{k}_n"] = sum(1 for r in sel if finite(r.get(k)))
             out[family][style] = agg
     return out
 
@@ -154,9 +192,24 @@ def direction_share(rows: list[dict[str, Any]], key: str = "time_s", *,
     return out
 
 
+SHARE_FIGURES = ("time_s", "junction_pet_s", "lc_gap_m")
+"""The figures whose per-scene order the style table reports (``direction_shares``)."""
+
+
+def direction_shares(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
+    """``direction_share`` of each of ``SHARE_FIGURES`` (families without a value left
+    out)."""
+    out = {}
+    for key in SHARE_FIGURES:
+        per = {fam: s for fam, s in direction_share(rows, key).items() if s["matter"]}
+        if per:
+            out[key] = per
+    return out
+
+
 def style_table_md(summary: dict[str, dict[str, dict[str, Any]]],
-                   shares: Optional[dict[str, dict[str, Any]]] = None) -> str:
-    """The style table: one row a family and style."""
+                   shares: Optional[dict[str, dict[str, dict[str, Any]]]] = None) -> str:
+    """The style table: one row a family and style; ``shares``: ``direction_shares``."""
 
     def f(v: Any, fmt: str) -> str:
         return format(v, fmt) if finite(v) else "-"
@@ -170,14 +223,17 @@ def style_table_md(summary: dict[str, dict[str, dict[str, Any]]],
                 f(a["peak_decel_mps2"], ".1f"), f(a["peak_jerk_mps3"], ".1f"),
                 f"{f(a['lc_gap_m'], '.1f')} ({a['lc_gap_m_n']})",
                 f"{f(a['junction_gap_m'], '.1f')} ({a['junction_gap_m_n']})",
+                f"{f(a.get('junction_pet_s'), '.1f')} ({a.get('junction_pet_s_n', 0)})",
                 f(a["overall_cost"], ".1f")])
     text = markdown(["Scenario", "Style", "Runs", "Coll.", "Fail", "Time", "Mean gap",
                      "Min gap", "Peak decel", "Peak jerk", "LC gap (n)", "Junction gap (n)",
-                     "O.C."], rows)
+                     "Junction PET s (n)", "O.C."], rows)
     if shares:
-        text += "\nPer scene, time in the expected order (aggressive <= normal <= " \
-                "conservative, aggressive < conservative) where the style changes it:\n\n"
-        text += markdown(["Scenario", "Scenes where style matters", "Follow", "Share"], [
-            [fam.upper(), f"{s['matter']}", f"{s['follow']}", f(s["share"], ".0%")]
-            for fam, s in shares.items()])
+        text += "\nPer scene, the figure in the expected order (aggressive <= normal <= " \
+                "conservative, aggressive < conservative) where the style changes it " \
+                "(gaps: scenes with a value for every style):\n\n"
+        text += markdown(["Scenario", "Figure", "Scenes where style matters", "Follow",
+                          "Share"], [
+            [fam.upper(), key, f"{s['matter']}", f"{s['follow']}", f(s["share"], ".0%")]
+            for key, per in shares.items() for fam, s in per.items()])
     return text
