@@ -134,8 +134,15 @@ def refused_at_start(route_file: Path, *, present: Sequence[str],
     except (OSError, ET.ParseError):
         return ()
     seen = set(present) | set(pending)
+
+    def at_zero(depart: str | None) -> bool:
+        try:
+            return float(depart or "nan") == 0.0
+        except ValueError:  # "now", "triggered", ...
+            return False
+
     return tuple(v.get("id", "") for v in root.iter("vehicle")
-                 if v.get("depart") in ("0", "0.0", "0.000") and v.get("id") not in seen)
+                 if at_zero(v.get("depart")) and v.get("id") not in seen)
 
 
 class SumoSim:
@@ -277,6 +284,7 @@ class SumoSim:
         if EGO_ID not in t.vehicle.getIDList():
             raise SimError(f"scene {family}/{seed}: SUMO did not insert the ego (blocked)")
         self._t0_s = float(t.simulation.getTime())  # our t = 0 is SUMO's first step
+        # (after a warm-up, vehicles departing at 0 may have come and gone)
         self._refused_at_start = refused_at_start(
             scene.route_file, present=t.vehicle.getIDList(),
             pending=t.simulation.getPendingVehicles()) if not warmup_steps else ()

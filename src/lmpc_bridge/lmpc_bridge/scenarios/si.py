@@ -145,13 +145,11 @@ def _check(p: SiParams) -> str | None:
     return None
 
 
-def _bike_arrival_s(p: SiParams) -> float:
+def _bike_arrival_s(p: SiParams, arm: int, arrival: float) -> float:
     """The bike's arrival at the stop line, unless it would start on the ego's lane within
     ``BIKE_CLEAR_BEHIND_M`` behind the ego's box or ``BIKE_CLEAR_AHEAD_M`` ahead of it:
     SUMO refuses the ego's insertion then (dev seed 113: 0.7 m behind). Such a bike starts
     just that far behind (or ahead of) the ego instead, arriving later (or earlier)."""
-    assert p.bike is not None
-    arm, arrival = p.bike
     if arm != 0 or (p.lanes != 1 and p.movement != "right"):
         return arrival  # another arm, or the ego starts on the left lane, the bike right
     behind_front_m = max(BIKE_SPEED_MPS * arrival, MIN_ARRIVAL_DIST_M) - p.ego_dist_m
@@ -250,7 +248,7 @@ def generate_si(seed: int, scene_dir: Path) -> Scene:
         if arm == 0 and p.leader_gap_m is not None:
             arm = 2  # a bike in the leader's lane would block the leader's insertion
         else:
-            arrival = _bike_arrival_s(p)
+            arrival = _bike_arrival_s(p, arm, arrival)
         add_arrival("bike0", f"r_{arm}s", arm, arrival, BIKE_SPEED_MPS, type_id="bike",
                     lane=_road_lanes(net.getEdge(f"A{arm}in"))[0].getIndex())
     if p.leader_gap_m is not None:
