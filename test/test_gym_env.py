@@ -4,8 +4,10 @@ action it is the benchmark's ``mpc`` episode to the last digit. Skipped without
 gymnasium (the ``test`` extra installs it, so CI runs these)."""
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -50,12 +52,26 @@ def test_reset_with_a_seed_repeats_and_other_seeds_pick_other_scenes() -> None:
     assert env.observation_space.contains(obs)
 
 
-def test_reset_skips_a_scene_sumo_cannot_start() -> None:
-    """si/10086: SUMO blocks the ego's insertion (the benchmark's ``error`` row). Training
-    draws another scene instead of dying (it killed a DQN run at step ~14 000); asked for
-    by name, the scene is an error."""
-    from lmpc_bridge.sim import SimError
+def test_reset_skips_a_scene_sumo_cannot_start(tmp_path: Path,
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """A scene whose ego SUMO cannot insert (the benchmark's ``error`` row): training draws
+    another scene instead of dying (si/10086 killed a DQN run at step ~14 000); asked for
+    by name, the scene is an error. si/10086's bike started on the ego's box then; the
+    generator keeps it clear since version 7, so the test puts it back there in the cached
+    scene's route file (the sim reuses the cached scene)."""
+    from lmpc_bridge.scenarios import build_scene
+    from lmpc_bridge.sim import SimError, SumoSim
 
+    scene = build_scene("si", 10086, work_dir=tmp_path)
+    routes = scene.route_file.read_text()
+    bike = re.search(r'<vehicle id="bike0"[^>]*departPos="([0-9.]+)"', routes)
+    assert bike is not None and 'route="r_0s"' in bike.group(0)
+    scene.route_file.write_text(routes.replace(
+        bike.group(0), bike.group(0).replace(
+            f'departPos="{bike.group(1)}"', f'departPos="{scene.ego_depart_pos_m - 1.0:.3f}"')))
+    if gym_env._SIM is not None:
+        gym_env._SIM.close()  # one simulation per process (libsumo); the next reset restarts it
+    monkeypatch.setattr(gym_env, "_SIM", SumoSim(work_dir=tmp_path))
     env = gym_env.LmpcDrivingEnv("si", seeds=(10086, 10001))
     with pytest.raises(SimError, match="si/10086: SUMO did not insert the ego"):
         env.reset(options={"scene_seed": 10086})
