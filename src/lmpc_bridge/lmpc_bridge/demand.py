@@ -175,6 +175,21 @@ def _read_one(path: Path) -> Demand:
     return Demand(tuple(sorted(departures)), tuple(flows), tuple(ids), tuple(vtypes), unknown)
 
 
+def refused_at_start(route_file: Path, *, present: Sequence[str],
+                     pending: Sequence[str]) -> tuple[str, ...]:
+    """The vehicles of a family scene's ``route_file`` departing at 0 that are neither in
+    the simulation nor waiting to be inserted after its first step: SUMO refused them with
+    an error (e.g. a leader it finds unable to stop before a never-green link) and the
+    scene runs without them. Unreadable files: ()."""
+    try:
+        root = ET.parse(route_file).getroot()
+    except (OSError, ET.ParseError):
+        return ()
+    seen = set(present) | set(pending)
+    return tuple(v.get("id", "") for v in root.iter("vehicle")
+                 if parse_time_s(v.get("depart")) == 0.0 and v.get("id") not in seen)
+
+
 @lru_cache(maxsize=32)
 def _read_cached(path: str, size: int, mtime_ns: int) -> Demand:
     return _read_one(Path(path))

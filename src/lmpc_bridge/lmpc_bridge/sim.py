@@ -18,11 +18,10 @@ libsumo runs one simulation per process: one ``SumoSim`` per process, and
 from __future__ import annotations
 
 import math
-import xml.etree.ElementTree as ET
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, Sequence
+from typing import Any, Literal
 
 import libsumo
 import traci.constants as tc
@@ -121,28 +120,6 @@ class StepInfo:
     applied_accel_mps2: float
     applied_steer_rad: float
     collided_with: str | None = None
-
-
-def refused_at_start(route_file: Path, *, present: Sequence[str],
-                     pending: Sequence[str]) -> tuple[str, ...]:
-    """The vehicles of ``route_file`` departing at 0 that are neither in the simulation
-    nor waiting to be inserted after its first step: SUMO refused them with an error
-    (e.g. a leader it finds unable to stop before a never-green link) and the scene runs
-    without them. Unreadable files: ()."""
-    try:
-        root = ET.parse(route_file).getroot()
-    except (OSError, ET.ParseError):
-        return ()
-    seen = set(present) | set(pending)
-
-    def at_zero(depart: str | None) -> bool:
-        try:
-            return float(depart or "nan") == 0.0
-        except ValueError:  # "now", "triggered", ...
-            return False
-
-    return tuple(v.get("id", "") for v in root.iter("vehicle")
-                 if at_zero(v.get("depart")) and v.get("id") not in seen)
 
 
 class SumoSim:
@@ -285,7 +262,7 @@ class SumoSim:
             raise SimError(f"scene {family}/{seed}: SUMO did not insert the ego (blocked)")
         self._t0_s = float(t.simulation.getTime())  # our t = 0 is SUMO's first step
         # (after a warm-up, vehicles departing at 0 may have come and gone)
-        self._refused_at_start = refused_at_start(
+        self._refused_at_start = traffic.refused_at_start(
             scene.route_file, present=t.vehicle.getIDList(),
             pending=t.simulation.getPendingVehicles()) if not warmup_steps else ()
         self._subscribe()
@@ -701,7 +678,7 @@ class SumoSim:
         """External scenes: a line when no background vehicle departs in the simulated
         window, and one when fewer vehicles entered so far than the traffic files declare
         (:mod:`lmpc_bridge.demand`); for the families' scenes, a line naming the vehicles
-        the scene starts with that SUMO refused at once (``refused_at_start``). Call while
+        the scene starts with that SUMO refused at once (``demand.refused_at_start``). Call while
         SUMO runs."""
         scene = self.scene
         if "scene_file" not in scene.params:
