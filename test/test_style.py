@@ -37,8 +37,9 @@ STYLE_SCENES = {  # family -> two development scenes (seeds 100-124) where style
 }
 
 
-def _car(gap: float, yaw: float = 0.0, v: float = 5.0) -> NearbyVehicle:
-    return NearbyVehicle(id="c", kind="car", x_m=0.0, y_m=0.0, yaw_rad=yaw, v_mps=v,
+def _car(gap: float, yaw: float = 0.0, v: float = 5.0, x: float = 0.0,
+         y: float = 0.0) -> NearbyVehicle:
+    return NearbyVehicle(id="c", kind="car", x_m=x, y_m=y, yaw_rad=yaw, v_mps=v,
                          v_max_mps=10.0, a_mps2=0.0, gap_m=gap)
 
 
@@ -50,17 +51,32 @@ def _step(k: int, lane: str, a: float, nearby: tuple[NearbyVehicle, ...] = ()) -
 def test_the_style_figures_of_a_record() -> None:
     steps = (
         _step(1, "e_0", 0.0, (_car(20.0),)),
-        _step(2, "e_1", -3.0, (_car(8.0), _car(12.0))),  # a lane change, nearest 8 m
+        # a lane change to the left (ego at the origin heading +x): the gap it accepted is
+        # to the car in the lane it enters (y = +1.6), not to the nearer leader in the lane
+        # it leaves (y = -1.6), a car two lanes over or an oncoming one
+        _step(2, "e_1", -3.0, (_car(12.0, x=14.0, y=1.6), _car(8.0, x=-10.0, y=1.7),
+                               _car(3.0, x=6.0, y=-1.6), _car(2.5, x=5.0, y=4.8),
+                               _car(2.0, yaw=math.pi, x=4.0, y=1.6))),
         _step(3, "e_1", -1.0),
         _step(4, ":j_0", 0.0, (_car(4.0), _car(9.0, yaw=math.pi / 2))),  # junction entry
     )
     rec = EpisodeRecord(family="x", seed=0, dt_s=0.1, max_time_s=10.0,
                         target_center=(0.0, 0.0), target_radius_m=1.0, steps=steps)
     m = style_metrics(rec)
-    assert m["min_gap_m"] == 4.0 and m["mean_gap_m"] == pytest.approx((20 + 8 + 4) / 3, abs=1e-3)
+    assert m["min_gap_m"] == 2.0 and m["mean_gap_m"] == pytest.approx((20 + 2 + 4) / 3, abs=1e-3)
     assert m["peak_decel_mps2"] == 3.0 and m["peak_jerk_mps3"] == pytest.approx(30.0)
     assert m["lc_changes"] == 1 and m["lc_gap_m"] == 8.0
     assert m["junction_gap_m"] == 9.0  # the crossing car, not the one ahead in its lane
+    # the same change to the right enters the lane with the 3 m leader; back to the left
+    # into an empty lane: no gap accepted there (the smallest over the changes: 3 m)
+    steps_r = (steps[0].model_copy(update={"lane_id": "e_1"}),
+               steps[1].model_copy(update={"lane_id": "e_0"}),
+               _step(3, "e_1", 0.0, (_car(1.0, x=3.0, y=-1.6),)))
+    m = style_metrics(rec.model_copy(update={"steps": steps_r}))
+    assert m["lc_changes"] == 2 and m["lc_gap_m"] == 3.0
+    only_free = rec.model_copy(update={"steps": (steps_r[0], _step(2, "e_0", 0.0, (
+        _car(1.0, x=3.0, y=1.6),)))})
+    assert math.isnan(style_metrics(only_free)["lc_gap_m"])
 
 
 def test_the_junction_pet_is_the_time_between_two_paths_crossing() -> None:

@@ -9,9 +9,16 @@ Definitions (all from :class:`lmpc_bridge.record.EpisodeRecord`, one record per 
   the smallest gap of the episode;
 - ``peak_decel_mps2``: the strongest deceleration of the ego (``-min a_mps2``, 0 if it
   never braked); ``peak_jerk_mps3``: the largest ``|a_k - a_{k-1}| / dt``;
-- ``lc_gap_m``: at each lane change (the lane index changes on the same edge, both
-  normal lanes) the smallest gap to any other vehicle on that step; the episode's value
-  is the smallest over its lane changes (nan: none);
+- ``lc_gap_m``: the gap accepted at a lane change (the lane index changes on the same
+  edge, both normal lanes): on that step, the smallest gap to a vehicle in the lane the
+  ego enters - its new leader or follower: heading within ``ALONG_RAD`` of the ego's, and
+  its centre on the entered side of the ego's centre by at most ``TARGET_LANE_BAND_M``
+  across its own heading (the ego's centre has just crossed the lane line, so the new
+  lane's vehicles are about half a lane width that way, the old lane's half a lane the
+  other). The episode's value is the smallest over its lane changes (nan: no lane change
+  with a vehicle in the entered lane within sensing range: the lane was free). Until
+  2026-12-07 it was the smallest gap to any vehicle, which at a lane change is mostly the
+  leader in the lane the ego leaves (an obstacle it passes), not the gap it accepted;
 - ``junction_gap_m``: at each junction entry (a normal lane followed by an internal
   ``:`` lane) the smallest gap to a vehicle whose heading differs from the ego's by more
   than ``CROSS_HEADING_RAD`` (crossing, merging, oncoming traffic; not the leader or the
@@ -35,10 +42,17 @@ from typing import Any, Optional
 import numpy as np
 
 from lmpc_bridge.evaluation.table import finite, markdown, mean_finite
-from lmpc_bridge.record import EpisodeRecord
+from lmpc_bridge.record import EpisodeRecord, StepRecord
 
 CROSS_HEADING_RAD = math.radians(30.0)
 MOVING_MPS = 0.5
+ALONG_RAD = math.radians(45.0)
+"""Another vehicle's heading this close to the ego's: same direction (``lc_gap_m``; the
+ego's own heading turns up to ~20 deg off the road during a lane change)."""
+TARGET_LANE_BAND_M = 3.0
+"""``lc_gap_m``: how far to the entered side of the ego's centre a vehicle of the entered
+lane may be (lanes are 3.2-3.5 m wide: its centre is ~1.6-1.75 m that way; a vehicle two
+lanes over ~4.8 m)."""
 PET_CROSS_M = 2.0
 """Two recorded centre points this close: the paths cross there (``junction_pet_s``;
 at 14 m/s consecutive samples are 1.4 m apart)."""
@@ -99,8 +113,9 @@ def style_metrics(record: EpisodeRecord) -> dict[str, Any]:
         p, c = edge_lane(prev.lane_id), edge_lane(cur.lane_id)
         if p is not None and c is not None and p[0] == c[0] and p[1] != c[1]:
             changes += 1
-            if cur.nearby:
-                lc_gaps.append(min(n.gap_m for n in cur.nearby))
+            entered = entered_lane_gaps(cur, left=int(c[1]) > int(p[1]))
+            if entered:
+                lc_gaps.append(min(entered))
         if p is not None and cur.lane_id is not None and cur.lane_id.startswith(":"):
             crossing = [n.gap_m for n in cur.nearby if n.v_mps >= MOVING_MPS
                         and _angle(n.yaw_rad - cur.yaw_rad) > CROSS_HEADING_RAD]
@@ -117,6 +132,21 @@ def style_metrics(record: EpisodeRecord) -> dict[str, Any]:
         "junction_gap_m": round(min(jn_gaps), 3) if jn_gaps else math.nan,
         "junction_pet_s": round(min(pets.values()), 3) if pets else math.nan,
     }
+
+
+def entered_lane_gaps(step: StepRecord, *, left: bool) -> list[float]:
+    """The gaps to the vehicles in the lane the ego enters on ``step`` (to its left when
+    ``left``; SUMO numbers lanes from the right): see ``lc_gap_m``."""
+    side = 1.0 if left else -1.0
+    out = []
+    for n in step.nearby:
+        if n.kind == "pedestrian" or _angle(n.yaw_rad - step.yaw_rad) > ALONG_RAD:
+            continue
+        dx, dy = n.x_m - step.x_m, n.y_m - step.y_m
+        across = side * (-math.sin(n.yaw_rad) * dx + math.cos(n.yaw_rad) * dy)
+        if 0.0 < across <= TARGET_LANE_BAND_M:
+            out.append(n.gap_m)
+    return out
 
 
 def junction_pets(record: EpisodeRecord) -> dict[str, float]:
@@ -192,16 +222,21 @@ def direction_share(rows: list[dict[str, Any]], key: str = "time_s", *,
     return out
 
 
-SHARE_FIGURES = ("time_s", "junction_pet_s", "lc_gap_m")
-"""The figures whose per-scene order the style table reports (``direction_shares``)."""
+SHARE_FIGURES = {"time_s": 0.05, "junction_pet_s": 0.1, "lc_gap_m": 0.5}
+"""The figures whose per-scene order the style table reports (``direction_shares``), each
+with its tie tolerance (``min_diff``): the figure's resolution. Time: any difference (the
+record's steps are 0.1 s); junction PET: one 0.1 s sample of the crossing; lane-change gap:
+the same gap taken one 0.1 s step apart differs by the relative speed x 0.1 s (up to
+~5 m/s on these roads). Until 2026-12-07 every figure used 0.05."""
 
 
 def direction_shares(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
     """``direction_share`` of each of ``SHARE_FIGURES`` (families without a value left
     out)."""
     out = {}
-    for key in SHARE_FIGURES:
-        per = {fam: s for fam, s in direction_share(rows, key).items() if s["matter"]}
+    for key, tol in SHARE_FIGURES.items():
+        per = {fam: s for fam, s in direction_share(rows, key, min_diff=tol).items()
+               if s["matter"]}
         if per:
             out[key] = per
     return out
