@@ -133,7 +133,8 @@ def result_row(result: Any, method: str, mode: str, wall_s: float) -> dict[str, 
         "min_gap_m": "" if gap is None else round(gap, 2),
         "wall_s": round(wall_s, 2),
         "per_ego": json.dumps(per_ego, sort_keys=True),
-        "detail": "; ".join(f"{e.ego_id}: {e.detail}" for e in result.egos if e.detail)[:500]}
+        "detail": "; ".join([f"{e.ego_id}: {e.detail}" for e in result.egos if e.detail]
+                            + [f"traffic: {w}" for w in result.warnings])[:500]}
 
 
 def run_one(family: str, seed: int, method: str, mode: str, work_dir: Path, *,

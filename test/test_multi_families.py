@@ -74,3 +74,38 @@ def test_blind_egos_meet_at_the_merge(tmp_path: Path) -> None:
                                 max_time_s=60.0)
     assert result.ego_collisions == 1
     assert {e.collided_with for e in result.egos} == {"ego_1", "ego_2"}
+
+
+def test_a_vehicle_sumo_refuses_at_start_is_reported(tmp_path: Path) -> None:
+    """As the single-ego sim: a background vehicle of the scene that SUMO drops at the start
+    with an error (here usi-multi 0's bg0, moved to its lane's end at 13.9 m/s: "unpriorised
+    junction too close") is named in ``traffic_warnings`` and the result's row detail; the
+    scene as built has none."""
+    import re
+
+    import libsumo
+
+    from lmpc_bridge.scenarios import build_scene
+
+    scene = build_scene("usi-multi", 0, work_dir=tmp_path)
+    routes = scene.route_file.read_text()
+    edited = re.sub(r'(id="bg0"[^>]*departPos=")[0-9.]+(" departSpeed=")[0-9.]+',
+                    r"\g<1>-2\g<2>13.9", routes)
+    assert edited != routes
+    sim = MultiSumoSim(work_dir=tmp_path / "fresh")
+    try:
+        sim.reset("usi-multi", 0)
+        assert "bg0" in libsumo.vehicle.getIDList() and sim.traffic_warnings() == ()
+    finally:
+        sim.close()
+    scene.route_file.write_text(edited)
+    sim = MultiSumoSim(work_dir=tmp_path)  # the cached scene, with the edited route file
+    try:
+        sim.reset("usi-multi", 0)
+        assert "bg0" not in libsumo.vehicle.getIDList()
+        assert sim.traffic_warnings() == (
+            "SUMO refused bg0, a vehicle the scene starts with (it never entered)",)
+    finally:
+        sim.close()
+    _, row = multi.run_one("usi-multi", 0, "mpc", "none", tmp_path, max_time_s=2.0)
+    assert "traffic: SUMO refused bg0" in row["detail"]

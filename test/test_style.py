@@ -126,12 +126,14 @@ def test_the_direction_share_counts_scenes_where_the_style_changes_the_time() ->
     for r in rows:
         r["junction_pet_s"] = {"conservative": 4.0, "normal": 3.0, "aggressive": 2.0}[
             r["style"]] if r["seed"] == 1 else math.nan
+        if r["seed"] == 3:  # one 0.1 s sample apart (in float: 18.2 - 18.1 > 0.1): a tie
+            r["junction_pet_s"] = 18.1 if r["style"] == "conservative" else 18.2
     shares = direction_shares(rows)
     assert set(shares) == {"time_s", "junction_pet_s"}
     assert shares["junction_pet_s"]["f"] == {"matter": 1, "follow": 1, "share": 1.0}
     table = style_table_md(style_summary(rows), shares)
     assert "| F | junction_pet_s | 1 | 1 | 100% |" in table
-    assert "| F | aggressive | 3 | 0 | 0 |" in table and "2.0 (1)" in table
+    assert "| F | aggressive | 3 | 0 | 0 |" in table and "10.1 (2)" in table  # (2 + 18.2) / 2
     assert style_summary(rows)["f"]["aggressive"]["time_s"] == pytest.approx(70 / 3, abs=1e-3)
 
 

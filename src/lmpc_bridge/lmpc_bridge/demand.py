@@ -190,6 +190,12 @@ def refused_at_start(route_file: Path, *, present: Sequence[str],
                  if parse_time_s(v.get("depart")) == 0.0 and v.get("id") not in seen)
 
 
+def refused_warnings(ids: Sequence[str]) -> tuple[str, ...]:
+    """The traffic warning for each vehicle ``refused_at_start`` found."""
+    return tuple(f"SUMO refused {vid}, a vehicle the scene starts with (it never entered)"
+                 for vid in ids)
+
+
 @lru_cache(maxsize=32)
 def _read_cached(path: str, size: int, mtime_ns: int) -> Demand:
     return _read_one(Path(path))

@@ -102,6 +102,8 @@ class MultiBridgeNode(BridgeBase):
                                f"({self.cfg.clock_mode} clock, several egos)")
         self.sim = MultiSumoSim(work_dir=self.run_dir / "scene")
         self.sim.reset(self.cfg.scenario, self.cfg.seed, max_time_s=self.cfg.max_time_s)
+        for line in self.sim.traffic_warnings():  # a vehicle SUMO refused at the start
+            self.get_logger().warning(f"traffic: {line}")
         if self.cfg.egos and self.cfg.egos != len(self.sim.egos):
             n = len(self.sim.egos)
             self.sim.close()
@@ -315,7 +317,8 @@ class MultiBridgeNode(BridgeBase):
                                    for k in ("median", "p99", "max")},
             "dropped_messages": self.counters.get("dropped_messages", 0),
             "step0_epoch_s": self.step0_epoch_s, "end_epoch_s": time.time(),
-            "profile_ms": profile, "warnings": [],
+            "profile_ms": profile,
+            "warnings": [f"traffic: {line}" for line in self.sim.traffic_warnings()],
             "records": {eid: self.sim.record(eid).to_json() for eid in self.egos},
         }
         path = self.run_dir / "episode.json"

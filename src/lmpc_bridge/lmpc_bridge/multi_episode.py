@@ -90,6 +90,8 @@ class MultiResult:
     """Per ego, its map (its route and target on the scene's roads)."""
     marks: dict[str, tuple[EgoMark, ...]] = field(default_factory=dict)
     """Per ego, the coordination's marks by step (empty without coordination)."""
+    warnings: tuple[str, ...] = ()
+    """``MultiSumoSim.traffic_warnings``: vehicles of the scene SUMO refused at its start."""
 
     @property
     def ego_ids(self) -> frozenset[str]:
@@ -201,4 +203,5 @@ def run_multi_episode(sim: MultiSumoSim, *, family: str, seed: int,
     sim.close()
     return MultiResult(family=family, seed=seed, egos=tuple(results), deadlock=sim.deadlock,
                        end_s=end_s, stats=stats, records=records, maps=maps,
-                       marks={eid: tuple(m) for eid, m in marks.items()})
+                       marks={eid: tuple(m) for eid, m in marks.items()},
+                       warnings=sim.traffic_warnings())

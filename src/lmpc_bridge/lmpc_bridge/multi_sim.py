@@ -54,6 +54,7 @@ from lmpc_bridge.insertion import InsertionGuard, guard_box
 from lmpc_bridge.mapping import RouteGeometry, build_map, read_net
 from lmpc_bridge.metrics import compute_metrics
 from lmpc_bridge import sumo_rng
+from lmpc_bridge.demand import refused_at_start, refused_warnings
 from lmpc_bridge.multi_scene import EgoSpec, ego_scene, ego_specs
 from lmpc_bridge.record import EpisodeRecord, StepRecord
 from lmpc_bridge.scenarios import Scene, SceneError, build_scene
@@ -135,6 +136,7 @@ class MultiSumoSim:
         self._still_since_s: Optional[float] = 0.0
         self.deadlock = False
         self._guard = InsertionGuard()
+        self._refused_at_start: tuple[str, ...] = ()
 
     # --- lifecycle ----------------------------------------------------------------------
     def reset(self, family: str, seed: int, *, max_time_s: float | None = None
@@ -181,6 +183,10 @@ class MultiSumoSim:
             self._add(spec, 0.0)
         if missing:
             t.simulationStep()
+        # as SumoSim: a vehicle of the scene that SUMO refused at once (an error on stderr)
+        self._refused_at_start = refused_at_start(
+            scene.route_file, present=t.vehicle.getIDList(),
+            pending=t.simulation.getPendingVehicles())
         net = read_net(scene.net_file)
         for spec in specs:
             if spec.ego_id not in t.vehicle.getIDList():
@@ -217,6 +223,11 @@ class MultiSumoSim:
                       departSpeed=f"{speed_mps:.3f}")
         t.vehicle.setSpeedMode(spec.ego_id, 0)
         t.vehicle.setLaneChangeMode(spec.ego_id, 0)
+
+    def traffic_warnings(self) -> tuple[str, ...]:
+        """A line naming each vehicle the scene starts with that SUMO refused at once
+        (``demand.refused_at_start``; the scene runs without it)."""
+        return refused_warnings(self._refused_at_start)
 
     def close(self) -> None:
         """Stop SUMO (``sumo_rng.close_simulation``, as ``SumoSim.close``: a single-ego

@@ -682,8 +682,7 @@ class SumoSim:
         SUMO runs."""
         scene = self.scene
         if "scene_file" not in scene.params:
-            return tuple(f"SUMO refused {vid}, a vehicle the scene starts with (it never "
-                         "entered)" for vid in self._refused_at_start)
+            return traffic.refused_warnings(self._refused_at_start)
         window = traffic.Window(begin_s=float(scene.params.get("begin_s", 0.0)),
                                 warmup_s=float(scene.params.get("warmup_s", 0.0)),
                                 max_time_s=self._max_time_s)

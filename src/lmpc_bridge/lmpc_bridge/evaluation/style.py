@@ -200,7 +200,9 @@ def direction_share(rows: list[dict[str, Any]], key: str = "time_s", *,
     """Per family: of the scenes where the style can matter (the conservative and the
     aggressive mean of ``key`` over the phrasings differ by more than ``min_diff`` from
     each other or from normal), how many follow the expected order aggressive <= normal
-    <= conservative with aggressive < conservative."""
+    <= conservative with aggressive < conservative. A difference of ``min_diff`` itself is
+    a tie (``min_diff`` plus 1e-6 against float rounding: 18.2 - 18.1 > 0.1)."""
+    tol = min_diff + 1e-6
     out: dict[str, dict[str, Any]] = {}
     for family in sorted({r["family"] for r in rows}):
         per: dict[int, dict[str, list[float]]] = {}
@@ -213,10 +215,10 @@ def direction_share(rows: list[dict[str, Any]], key: str = "time_s", *,
             if not all(s in by for s in STYLES):
                 continue
             c, n, a = (statistics.fmean(by[s]) for s in STYLES)
-            if max(c, n, a) - min(c, n, a) <= min_diff:
+            if max(c, n, a) - min(c, n, a) <= tol:
                 continue
             matter += 1
-            follow += int(a <= n + min_diff and n <= c + min_diff and a < c)
+            follow += int(a <= n + tol and n <= c + tol and a < c)
         out[family] = {"matter": matter, "follow": follow,
                        "share": round(follow / matter, 3) if matter else math.nan}
     return out
@@ -225,7 +227,8 @@ def direction_share(rows: list[dict[str, Any]], key: str = "time_s", *,
 SHARE_FIGURES = {"time_s": 0.05, "junction_pet_s": 0.1, "lc_gap_m": 0.5}
 """The figures whose per-scene order the style table reports (``direction_shares``), each
 with its tie tolerance (``min_diff``): the figure's resolution. Time: any difference (the
-record's steps are 0.1 s); junction PET: one 0.1 s sample of the crossing; lane-change gap:
+record's steps are 0.1 s); junction PET: one 0.1 s sample (the same crossing seen one
+sample earlier or later is a tie, two samples are not); lane-change gap:
 the same gap taken one 0.1 s step apart differs by the relative speed x 0.1 s (up to
 ~5 m/s on these roads). Until 2026-12-07 every figure used 0.05."""
 
