@@ -122,3 +122,40 @@ def test_a_vehicle_sumo_refuses_at_start_is_reported(tmp_path: Path) -> None:
         assert sim.traffic_warnings() == ()
     finally:
         sim.close()
+
+
+def test_candidate_selection_does_not_depend_on_the_order_of_requests() -> None:
+    """Scene ``seed`` is the ``seed``-th passing candidate however the process asked before
+    (the scan is kept per family): seeds asked out of order, and again, match a walk from
+    candidate 0 for each; a family whose candidates stop passing raises SceneError."""
+    import zlib
+
+    import numpy as np
+
+    from lmpc_bridge.scenarios import common
+
+    def sample(rng: np.random.Generator) -> float:
+        return float(rng.random())
+
+    def check(x: float) -> str | None:
+        return "passes" if x < 0.3 else None
+
+    def walk(seed: int) -> int:
+        key, passed, c = zlib.crc32(b"toy"), -1, 0
+        while True:
+            if sample(np.random.Generator(np.random.PCG64([key, c]))) < 0.3:
+                passed += 1
+                if passed == seed:
+                    return c
+            c += 1
+
+    got = [common.select_candidate("toy", s, sample=sample, check=check).index
+           for s in (40, 3, 17, 40, 0)]
+    assert got == [walk(s) for s in (40, 3, 17, 40, 0)] and len(set(got)) == 4
+
+    def never(x: float) -> str | None:
+        return None
+
+    for _ in range(2):
+        with pytest.raises(SceneError, match="candidates in a row"):
+            common.select_candidate("toy", 0, sample=sample, check=never)
