@@ -106,3 +106,34 @@ def test_aggressive_follows_a_platoon_closer_but_still_stops_short(
     inp, plan = _at_gap(road, planner_config, mpc_config, 16.0, v=7.0, vl=7.0,
                         instruction="drive aggressively")
     assert plan == fresh_plan(inp)
+
+
+def test_conservative_lane_change_keeps_its_headway_to_the_leader_it_merges_behind(
+        road, planner_config, mpc_config):
+    """Issue 20 (lane dev seeds: merging at once with its gentler braking, the conservative
+    driver entered closer behind the new leader than normal did): changing lanes, the
+    conservative style drops back from the leader of the lane it enters; the leader of the
+    lane it leaves does not count, and the other styles leave the speed to the MPC."""
+    cons = "drive conservatively"
+    here = car("here", x_m=52.25 + 8.0 + 2.25, v_mps=12.0)  # 8 m ahead in my lane
+
+    def changing(gap_new_m: float, instruction):
+        new = car("new", x_m=52.25 + gap_new_m + 2.25, v_mps=12.0, left=True)
+        inp = inputs(road_obs(road, [here, new]), planner_config, mpc_config,
+                     instruction=instruction)
+        plan = dataclasses.replace(
+            fresh_plan(inp), ego_index=next(c.candidate_id for c in inp.scene.ego_candidates
+                                            if c.label == "change to the left lane"))
+        headway_rule(inp, plan)
+        return inp, plan
+
+    inp, plan = changing(20.0, cons)  # 4 s at 12 m/s wants ~48 m
+    assert plan.speed_set and accel_of(inp, plan) < 0.0
+    assert plan.attention == {"new": "leader in the lane I change to"}
+    assert "new drives 20 m ahead in the lane I change to" in plan.notes[0]
+    far = wanted_gap_m(12.0, 12.0, CONSERVATIVE_OPEN_ROAD_HEADWAY_S) + 2.0
+    inp, plan = changing(far, cons)
+    assert not plan.speed_set and not plan.notes  # the 8 m leader it leaves: no matter
+    for other in (None, "drive aggressively"):
+        inp, plan = changing(20.0, other)
+        assert not plan.speed_set and not plan.notes

@@ -10,8 +10,13 @@ from __future__ import annotations
 
 from lmpc_llm_planner.route import next_maneuver
 
+from typing import Optional
+
+from lmpc_llm_planner.scene import AgentView, Scene
+
 from .intervals import brake_index, neutral
-from .plan import Plan, RuleInputs, changing_lanes
+from .lane import lane_state
+from .plan import Plan, RuleInputs, changing_lanes, chosen_candidate
 from .scene_helpers import STANDOFF_M, lane_leader
 
 HEADWAY_S = 2.0
@@ -68,15 +73,34 @@ def wanted_gap_m(v_mps: float, leader_v_mps: float, headway_s: float = HEADWAY_S
                - vl * vl / (2.0 * LEADER_BRAKE_MPS2) + standoff_m)
 
 
+def entered_lane_leader(scene: Scene, plan: Plan) -> Optional[AgentView]:
+    """The nearest vehicle ahead in the lane the chosen lane-change candidate enters (the
+    candidate's other lane on the ego's edge)."""
+    here = scene.lanes.get(scene.obs.ego.lane_id or "")
+    if here is None:
+        return None
+    for lid in chosen_candidate(scene, plan).lane_ids:
+        ln = scene.lanes.get(lid)
+        if ln is not None and ln.edge_id == here.edge_id and lid != here.id:
+            return lane_state(scene, lid)[0]
+    return None
+
+
 def headway_rule(inp: RuleInputs, plan: Plan) -> None:
     """Drop back (mildest braking) or hold the speed behind a leader that is too close."""
     scene = inp.scene
     v = scene.obs.ego.v_mps
     if v < HEADWAY_MIN_SPEED_MPS:
         return
-    if changing_lanes(scene, plan):
-        return  # the leader of the lane being left does not matter
-    leader = lane_leader(scene)
+    if not changing_lanes(scene, plan):
+        leader = lane_leader(scene)
+    elif inp.intent.style == "conservative":
+        # the leader of the lane being left does not matter; the conservative driver keeps
+        # its headway to the one of the lane it enters (lane dev seeds: merging at once
+        # with its gentler braking it entered closer behind that leader than normal did)
+        leader = entered_lane_leader(scene, plan)
+    else:
+        return
     if leader is None or leader.agent.v_mps < inp.cfg.moving_speed_mps:
         return  # standing: the stand-off rules (path, go) handle it
     vl = leader.agent.v_mps
@@ -84,13 +108,14 @@ def headway_rule(inp: RuleInputs, plan: Plan) -> None:
     gap = leader.kin.gap_m
     if gap >= want:
         return
-    plan.attend(leader, "leader in my lane")
+    where = "in the lane I change to" if changing_lanes(scene, plan) else "in my lane"
+    plan.attend(leader, f"leader {where}")
     plan.speed_set = True
     plan.weights["action"] = "high"
     if gap < HEADWAY_OPEN_FRACTION * want and v > vl - 1.0:
         plan.accel_index = brake_index(inp.accel, 0.5, False)
         plan.notes.append(
-            f"{leader.id} drives {gap:.0f} m ahead in my lane at {vl:.1f} m/s; I drop "
+            f"{leader.id} drives {gap:.0f} m ahead {where} at {vl:.1f} m/s; I drop "
             f"back to about {want:.0f} m so I can still brake or steer round it if it "
             "brakes hard.")
     else:
