@@ -5,13 +5,14 @@ leader's, plus ``STANDOFF_M`` to steer round it (aggressive: ``AGGRESSIVE_STANDO
 stop short of it only); at least the style's time gap (``style_headway_s``). The
 MPC follows at its own (1 s) headway; too close, the rules brake gently (the mildest
 braking interval) until the gap has opened, and hold the speed while it is only a little
-short."""
+short. During a lane change the leader of the lane being left does not count; the
+conservative style keeps its gap to the leader of the lane it enters (the others leave that
+to the MPC)."""
 from __future__ import annotations
-
-from lmpc_llm_planner.route import next_maneuver
 
 from typing import Optional
 
+from lmpc_llm_planner.route import next_maneuver
 from lmpc_llm_planner.scene import AgentView, Scene
 
 from .intervals import brake_index, neutral
