@@ -16,7 +16,7 @@ from lmpc_llm_planner.route import next_maneuver
 from lmpc_llm_planner.scene import AgentView, Scene
 
 from .intervals import brake_index, neutral
-from .lane import lane_state
+from .lane import lane_state, lanes_on_edge
 from .plan import Plan, RuleInputs, changing_lanes, chosen_candidate
 from .scene_helpers import STANDOFF_M, lane_leader
 
@@ -80,11 +80,9 @@ def entered_lane_leader(scene: Scene, plan: Plan) -> Optional[AgentView]:
     here = scene.lanes.get(scene.obs.ego.lane_id or "")
     if here is None:
         return None
-    for lid in chosen_candidate(scene, plan).lane_ids:
-        ln = scene.lanes.get(lid)
-        if ln is not None and ln.edge_id == here.edge_id and lid != here.id:
-            return lane_state(scene, lid)[0]
-    return None
+    entered = [lid for lid in lanes_on_edge(scene, chosen_candidate(scene, plan), here.edge_id)
+               if lid != here.id]
+    return lane_state(scene, entered[0])[0] if entered else None
 
 
 def headway_rule(inp: RuleInputs, plan: Plan) -> None:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Optional, Union
 
 from lmpc_msgs_py.messages import Lane
+from lmpc_mpc.reference import Candidate
 
 from lmpc_llm_planner.scene import AgentView, Scene
 
@@ -382,17 +383,22 @@ def merge_along_route(inp: RuleInputs, plan: Plan, lv: LaneView) -> bool:
     # and its safety term keeps the gaps; SUMO drivers make room. A strict gap
     # test here found no gap in dense slow traffic (lane seed 119 missed its
     # exit), and a missed exit costs a 200 s timeout.
-    for lid in scene.ego_candidates[step_c].lane_ids:
-        ln = scene.lanes.get(lid)
-        if ln is not None and ln.edge_id == here.edge_id:
-            for v in scene.agents:
-                if v.agent.lane_id == lid and abs(v.kin.longitudinal_m) < 40.0:
-                    plan.attend(v, "in the lane I merge into")
+    for lid in lanes_on_edge(scene, scene.ego_candidates[step_c], here.edge_id):
+        for v in scene.agents:
+            if v.agent.lane_id == lid and abs(v.kin.longitudinal_m) < 40.0:
+                plan.attend(v, "in the lane I merge into")
     plan.ego_index = step_c
     plan.notes.append(
         f"My route needs {lv.need} lane change(s) within {lv.dist_end_m:.0f} m; I "
         "move towards that lane now and keep safe gaps.")
     return True
+
+
+def lanes_on_edge(scene: Scene, candidate: Candidate, edge_id: str) -> list[str]:
+    """The lanes of ``candidate`` on the edge ``edge_id`` (the ego's: where a lane-change
+    candidate leaves the ego's lane and enters the next one)."""
+    return [lid for lid in candidate.lane_ids
+            if (ln := scene.lanes.get(lid)) is not None and ln.edge_id == edge_id]
 
 
 def slower_target_lane(inp: RuleInputs, lv: LaneView) -> Optional[float]:
