@@ -56,8 +56,13 @@ lint: install
 	$(PY) -m flake8 src scripts test
 	$(PY) -m mypy
 
+# the tests without node processes on TEST_WORKERS pytest-xdist workers (the Ray ones on one
+# of them: --dist loadgroup), then the graph tests (marker `graph`) one at a time, so no two
+# graphs share the cores their timing depends on
+TEST_WORKERS ?= 2
 test: install solvers lint
-	$(PY) -m pytest
+	$(PY) -m pytest -m "not graph" -n $(TEST_WORKERS) --dist loadgroup
+	$(PY) -m pytest -m graph
 
 clean:
 	rm -rf $(VENV) build *.egg-info src/*/*.egg-info runs

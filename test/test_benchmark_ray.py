@@ -20,6 +20,9 @@ from graphkit import REPO, interrupt_after
 pytest.importorskip("ray", reason="ray is not installed (the optional 'ray' extra: "
                                   "pip install -e '.[ray]')")
 
+# one Ray at a time: these tests look for Ray processes they did not start
+pytestmark = pytest.mark.xdist_group("ray")
+
 TIMINGS = {"solve_ms_median", "solve_ms_p99", "compute_ms_median", "compute_ms_p99", "wall_s"}
 RAY_PROCESSES = ("gcs_server", "raylet", "ray::", "default_worker.py", "dashboard",
                  "runtime_env", "log_monitor", "monitor.py")

@@ -130,6 +130,7 @@ def test_regret_of_a_two_scene_rules_run(tmp_path: Path) -> None:
                                                          reverse=True)
 
 
+@pytest.mark.xdist_group("ray")  # beside test_benchmark_ray's, which counts Ray processes
 def test_ray_and_two_pool_workers_give_the_rows_of_one(tmp_path: Path, monkeypatch) -> None:
     """The executor and the number of workers change where the scenes run, not the files
     (every column but the wall times)."""
