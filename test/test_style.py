@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from lmpc_bridge.evaluation.scenes import SceneSpec
+from lmpc_bridge.evaluation.table import wilson_interval
 from lmpc_bridge.evaluation.style import (
     INSTRUCTION_SETS,
     SITUATION_SETS,
@@ -121,7 +122,7 @@ def test_the_direction_share_counts_scenes_where_the_style_changes_the_time() ->
             rows.append({"family": "f", "seed": seed, "style": style, "time_s": t,
                          "collision": 0, "fail": 0})
     share = direction_share(rows)["f"]
-    assert share == {"matter": 2, "follow": 1, "share": 0.5}
+    assert share == {"matter": 2, "follow": 1, "share": 0.5, "share_ci": (0.095, 0.905)}
     # the table's shares: per figure, only figures some scene has a value of
     for r in rows:
         r["junction_pet_s"] = {"conservative": 4.0, "normal": 3.0, "aggressive": 2.0}[
@@ -130,11 +131,20 @@ def test_the_direction_share_counts_scenes_where_the_style_changes_the_time() ->
             r["junction_pet_s"] = 18.1 if r["style"] == "conservative" else 18.2
     shares = direction_shares(rows)
     assert set(shares) == {"time_s", "junction_pet_s"}
-    assert shares["junction_pet_s"]["f"] == {"matter": 1, "follow": 1, "share": 1.0}
+    assert shares["junction_pet_s"]["f"] == {"matter": 1, "follow": 1, "share": 1.0,
+                                             "share_ci": (0.207, 1.0)}
     table = style_table_md(style_summary(rows), shares)
-    assert "| F | junction_pet_s | 1 | 1 | 100% |" in table
+    assert "| F | junction_pet_s | 1 | 1 | 100% | 21%-100% |" in table
     assert "| F | aggressive | 3 | 0 | 0 |" in table and "10.1 (2)" in table  # (2 + 18.2) / 2
     assert style_summary(rows)["f"]["aggressive"]["time_s"] == pytest.approx(70 / 3, abs=1e-3)
+
+
+def test_the_wilson_interval_of_a_share() -> None:
+    # 20 of 25: 0.609-0.911 (the textbook's Wilson score interval at 95 %)
+    lo, hi = wilson_interval(20, 25)
+    assert (round(lo, 3), round(hi, 3)) == (0.609, 0.911)
+    assert wilson_interval(0, 3)[0] == 0.0 and wilson_interval(3, 3)[1] == 1.0
+    assert all(math.isnan(v) for v in wilson_interval(0, 0))
 
 
 def test_every_phrasing_of_the_style_set_reads_as_its_style() -> None:

@@ -41,7 +41,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from lmpc_bridge.evaluation.table import finite, markdown, mean_finite
+from lmpc_bridge.evaluation.table import finite, markdown, mean_finite, wilson_interval
 from lmpc_bridge.record import EpisodeRecord, StepRecord
 
 CROSS_HEADING_RAD = math.radians(30.0)
@@ -201,7 +201,9 @@ def direction_share(rows: list[dict[str, Any]], key: str = "time_s", *,
     aggressive mean of ``key`` over the phrasings differ by more than ``min_diff`` from
     each other or from normal), how many follow the expected order aggressive <= normal
     <= conservative with aggressive < conservative. A difference of ``min_diff`` itself is
-    a tie (``min_diff`` plus 1e-6 against float rounding: 18.2 - 18.1 > 0.1)."""
+    a tie (``min_diff`` plus 1e-6 against float rounding: 18.2 - 18.1 > 0.1). ``share_ci``:
+    the share's 95 % Wilson interval (25 scenes leave a share of 80 % anywhere in
+    61-91 %)."""
     tol = min_diff + 1e-6
     out: dict[str, dict[str, Any]] = {}
     for family in sorted({r["family"] for r in rows}):
@@ -219,8 +221,10 @@ def direction_share(rows: list[dict[str, Any]], key: str = "time_s", *,
                 continue
             matter += 1
             follow += int(a <= n + tol and n <= c + tol and a < c)
+        lo, hi = wilson_interval(follow, matter)
         out[family] = {"matter": matter, "follow": follow,
-                       "share": round(follow / matter, 3) if matter else math.nan}
+                       "share": round(follow / matter, 3) if matter else math.nan,
+                       "share_ci": (round(lo, 3), round(hi, 3))}
     return out
 
 
@@ -271,7 +275,8 @@ def style_table_md(summary: dict[str, dict[str, dict[str, Any]]],
                 "conservative, aggressive < conservative) where the style changes it " \
                 "(gaps: scenes with a value for every style):\n\n"
         text += markdown(["Scenario", "Figure", "Scenes where style matters", "Follow",
-                          "Share"], [
-            [fam.upper(), key, f"{s['matter']}", f"{s['follow']}", f(s["share"], ".0%")]
+                          "Share", "95 % interval"], [
+            [fam.upper(), key, f"{s['matter']}", f"{s['follow']}", f(s["share"], ".0%"),
+             "{}-{}".format(*(f(v, ".0%") for v in s["share_ci"]))]
             for key, per in shares.items() for fam, s in per.items()])
     return text
