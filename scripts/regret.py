@@ -100,8 +100,13 @@ class _Context:
     family: str
     seed: int
     oracle: OracleConfig
+    part: tuple[int, int] = (0, 1)
+    """(i, n): judge only the decision instants k with k % n == i (the episode runs in
+    full: a scene split over n workers, ``run``)."""
     episode: Any = None
     rows: list[dict[str, Any]] = field(default_factory=list)
+    instants: list[float] = field(default_factory=list)
+    """Every decision instant of the re-run, judged here or not."""
 
 
 def _content(d: Optional[Decision], baseline: tuple) -> tuple:
@@ -138,6 +143,9 @@ class RegretMixin:
         if core.backend.name == "rules":  # the rules' answer is an option, as in the oracle
             rules = core._ask(scene, mode, "all", {}, [])
         chosen: Optional[Decision] = super()._decide(scene, mode)  # type: ignore[misc]
+        ctx.instants.append(round(scene.obs.stamp_s, 3))
+        if (len(ctx.instants) - 1) % ctx.part[1] != ctx.part[0]:
+            return chosen  # another part's instant (what follows only forks and reads)
         t0 = time.perf_counter()
         ep = ctx.episode
         dt = ep.sim.dt_s
@@ -303,11 +311,12 @@ def _float(v: Any) -> float:
 
 def regret_of_scene(run_dir: Path, row: dict[str, Any], *, sim: Any, oracle: OracleConfig,
                     instruction: Optional[str] = None, build: Optional[Any] = None,
-                    max_time_s: float = FAMILY_MAX_TIME_S
+                    max_time_s: float = FAMILY_MAX_TIME_S, part: tuple[int, int] = (0, 1)
                     ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """The regret rows of one recorded scene and how the re-run compares with the row.
     ``build``: the wiring factory (default the method registry's; a test passes the
-    oracle with its own config); ``max_time_s``: the episode cap."""
+    oracle with its own config); ``max_time_s``: the episode cap; ``part``: judge only
+    that share of the decision instants (``_Context.part``; ``merge_parts`` joins them)."""
     from lmpc_bridge.episode import Episode
 
     method, family, seed = row["method"], row["family"], int(row["seed"])
@@ -318,7 +327,7 @@ def regret_of_scene(run_dir: Path, row: dict[str, Any], *, sim: Any, oracle: Ora
     wiring = (build or methods.build)(spec)
     if wiring.planner is None:
         raise RegretError(f"{method} has no planner")
-    ctx = _Context(family, seed, oracle)
+    ctx = _Context(family, seed, oracle, part=part)
     planner = tap(wiring.planner, ctx)
     t0 = time.perf_counter()
     episode = Episode(sim, family=family, seed=seed, controller=wiring.controller,
@@ -328,7 +337,6 @@ def regret_of_scene(run_dir: Path, row: dict[str, Any], *, sim: Any, oracle: Ora
     m = episode.result().metrics
     outcome = episode.sim.outcome
     recorded = recorded_instants(run_dir / "decisions" / scene_log_name(family, seed, method))
-    times = [r["t_s"] for r in ctx.rows]
     scene = {
         "family": family, "seed": seed, "method": method, "rerun_as": again,
         "recorded": {"outcome": row["outcome"], "time_s": _float(row["time_s"]),
@@ -341,8 +349,21 @@ def regret_of_scene(run_dir: Path, row: dict[str, Any], *, sim: Any, oracle: Ora
     scene["repeats_recorded_row"] = (
         outcome == row["outcome"] and abs(round(m.time_s, 3) - _float(row["time_s"])) < 1e-6
         and abs(m.overall_cost - _float(row["overall_cost"])) <= 2e-4)
-    scene["same_instants"] = recorded is not None and [round(t, 3) for t in recorded] == times
+    scene["same_instants"] = recorded is not None and \
+        [round(t, 3) for t in recorded] == ctx.instants
     return ctx.rows, scene
+
+
+def merge_parts(parts: list[tuple[list[dict[str, Any]], dict[str, Any]]]
+                ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """One scene's rows and record from its parts (``regret_of_scene(part=...)``: the same
+    re-run, each judging its share of the instants); ``wall_s``: the slowest part's."""
+    rows = sorted((r for got, _ in parts for r in got), key=lambda r: r["t_s"])
+    scene = dict(parts[0][1], decisions=len(rows),
+                 wall_s=max(sc["wall_s"] for _, sc in parts))
+    if len(parts) > 1:
+        scene["parts"] = len(parts)
+    return rows, scene
 
 
 def recorded_instants(log: Path) -> Optional[list[float]]:
@@ -511,7 +532,8 @@ scene."""
 
 
 def regret_job(run_dir: str, row: dict[str, Any], oracle: OracleConfig,
-               instruction: Optional[str]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+               instruction: Optional[str], part: tuple[int, int] = (0, 1)
+               ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """``regret_of_scene`` in a worker process of an executor (the local pool or a Ray
     task; ``lmpc_bridge.evaluation.executors``)."""
     global _WORKER_SIM
@@ -521,7 +543,7 @@ def regret_job(run_dir: str, row: dict[str, Any], oracle: OracleConfig,
         methods.prepare()
         _WORKER_SIM = SumoSim(work_dir=Path(tempfile.mkdtemp(prefix="lmpc-regret-")))
     return regret_of_scene(Path(run_dir), row, sim=_WORKER_SIM, oracle=oracle,
-                           instruction=instruction)
+                           instruction=instruction, part=part)
 
 
 def run(run_dir: Path, *, method: Optional[str] = None, out: Optional[Path] = None,
@@ -530,7 +552,9 @@ def run(run_dir: Path, *, method: Optional[str] = None, out: Optional[Path] = No
     """The regret of every scene of ``run_dir`` (one method); writes the files to ``out``
     (default ``run_dir/regret``) and returns the summary. The scenes run in ``workers``
     processes of ``executor`` (``pool`` or ``ray``, as ``benchmark.py``'s; the rows do
-    not depend on either). Ctrl-C or SIGTERM: the files get the finished scenes."""
+    not depend on either); with fewer scenes than workers each scene is split into
+    ``workers // scenes`` parts that each re-run it and judge every n-th decision instant.
+    Ctrl-C or SIGTERM: the files get the finished scenes."""
     from lmpc_bridge.evaluation.executors import make_executor
 
     csv_path = run_dir / "results.csv"
@@ -558,19 +582,32 @@ def run(run_dir: Path, *, method: Optional[str] = None, out: Optional[Path] = No
     # by name from the package (a Ray worker cannot import this file as __main__)
     from lmpc_scripts.regret import regret_job as job
 
+    # fewer scenes than workers: each scene's instants are split over several (every part
+    # re-runs the whole episode and judges its share; the rows are those of one part)
+    n_parts = max(1, workers // max(len(todo), 1))
+    jobs = [(k, (i, n_parts)) for k in range(len(todo)) for i in range(n_parts)]
     t0 = time.monotonic()
     interrupted = False
     with make_executor(executor, workers) as ex:
         signal.signal(signal.SIGTERM, raise_interrupt)
         try:
-            calls = [(str(run_dir), row, oracle, instruction) for row in todo]
-            for done, (i, result) in enumerate(ex.results(job, calls), 1):
-                row = todo[i]
-                if isinstance(result, BaseException):
-                    scenes.append({"family": row["family"], "seed": row["seed"],
-                                   "skipped": f"{type(result).__name__}: {result}"})
+            calls = [(str(run_dir), todo[k], oracle, instruction, part) for k, part in jobs]
+            pending: dict[int, list[Any]] = {}
+            done = 0
+            for j, result in ex.results(job, calls):
+                k = jobs[j][0]
+                pending.setdefault(k, []).append(result)
+                if len(pending[k]) < n_parts:
                     continue
-                got, scene = result
+                done += 1
+                row = todo[k]
+                results = pending.pop(k)
+                failed = [r for r in results if isinstance(r, BaseException)]
+                if failed:
+                    scenes.append({"family": row["family"], "seed": row["seed"],
+                                   "skipped": f"{type(failed[0]).__name__}: {failed[0]}"})
+                    continue
+                got, scene = merge_parts(results)
                 rows += got
                 scenes.append(scene)
                 if progress:
@@ -693,7 +730,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                          "rules reasoner at the planner's cadence, as Table I's oracle rows "
                          "with --oracle-continuation rules)")
     ap.add_argument("--workers", type=workers_arg, default=1,
-                    help="scenes at once (worker processes / Ray CPUs; default 1)")
+                    help="scenes at once (worker processes / Ray CPUs; default 1); with "
+                         "fewer scenes, each is split over N // scenes workers")
     ap.add_argument("--executor", choices=EXECUTORS, default="pool",
                     help="pool: local worker processes (default); ray: Ray tasks, on the "
                          "cluster at $RAY_ADDRESS or a local Ray (docs/CLUSTER.md)")

@@ -6,6 +6,7 @@ import csv
 import dataclasses
 import json
 import math
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -154,6 +155,24 @@ def test_ray_and_two_pool_workers_give_the_rows_of_one(tmp_path: Path, monkeypat
     counts = [[sc["decisions"] for sc in x["scenes"]] for x in (one, two, ray)]
     assert counts[0] == counts[1] == counts[2], counts
     assert ray["executor"] == "ray" and ray["workers"] == 2 and not ray["interrupted"]
+    # one scene on two workers: two parts, each re-running the scene and judging every
+    # other instant, give the rows of one worker
+    single = tmp_path / "single"
+    (single / "decisions").mkdir(parents=True)
+    with (run / "results.csv").open(newline="") as fh:
+        reader = csv.DictReader(fh)
+        recorded = [r for r in reader if r["family"] == "usi"]
+    with (single / "results.csv").open("w", newline="") as fh:
+        out = csv.DictWriter(fh, fieldnames=list(recorded[0]))
+        out.writeheader()
+        out.writerows(recorded)
+    for log in (run / "decisions").glob("usi-101-*"):
+        shutil.copy(log, single / "decisions" / log.name)
+    split = regret.run(single, oracle=SMALLER, progress=False, workers=2)
+    assert [sc.get("parts") for sc in split["scenes"]] == [2]
+    assert split["scenes"][0]["same_instants"] and split["scenes"][0]["repeats_recorded_row"]
+    usi_rows = [r for r in rows(tmp_path / "one") if r["family"] == "usi"]
+    assert len(usi_rows) > 2 and rows(single / "regret") == usi_rows
 
 
 def test_swap_part_takes_one_part_of_the_donor() -> None:
