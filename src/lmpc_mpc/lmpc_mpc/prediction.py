@@ -42,14 +42,29 @@ class AgentForecast:
 
 
 @lru_cache(maxsize=256)
-def _sampled(control_points: tuple[tuple[float, float], ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Samples of the curve and their cumulative arc length, cached per curve: the
-    controller reuses an agent's curve for several steps (read-only arrays)."""
+def _sampled(control_points: tuple[tuple[float, float], ...]
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Samples of the curve, their cumulative arc length and the unit direction of its
+    last segment (zero for a degenerate one), cached per curve: the controller reuses an
+    agent's curve for several steps (read-only arrays)."""
     pts = bezier_points(control_points, _SAMPLES)
     cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
-    pts.setflags(write=False)
-    cum.setflags(write=False)
-    return pts, cum
+    tail = pts[-1] - pts[-2]
+    norm = float(np.hypot(*tail))
+    tail = tail / norm if norm > 1e-9 else np.zeros(2)
+    for arr in (pts, cum, tail):
+        arr.setflags(write=False)
+    return pts, cum, tail
+
+
+def _curve(control_points: Sequence[Sequence[float]]
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``_sampled`` of the points: a tuple of float pairs is its own cache key (the
+    callers' usual form), anything else is converted first."""
+    try:
+        return _sampled(control_points)
+    except TypeError:  # unhashable (lists, arrays)
+        return _sampled(tuple((float(p[0]), float(p[1])) for p in control_points))
 
 
 def predict_along(control_points: Sequence[Sequence[float]], *, v_mps: float, horizon: int,
@@ -58,10 +73,7 @@ def predict_along(control_points: Sequence[Sequence[float]], *, v_mps: float, ho
 
     ``start_xy_m``: where the agent is now; the forecast starts at the closest
     point of the curve to it (a decision's curve may be a few steps old)."""
-    pts, cum = _sampled(tuple((float(p[0]), float(p[1])) for p in control_points))
-    tail = pts[-1] - pts[-2]
-    norm = float(np.hypot(*tail))
-    tail = tail / norm if norm > 1e-9 else np.zeros(2)
+    pts, cum, tail = _curve(control_points)
     s_start = 0.0
     if start_xy_m is not None:
         start = np.asarray(start_xy_m, dtype=float)
@@ -75,8 +87,8 @@ def predict_along(control_points: Sequence[Sequence[float]], *, v_mps: float, ho
     out = np.empty((horizon + 1, 2))
     out[:, 0] = np.interp(s, cum, pts[:, 0])
     out[:, 1] = np.interp(s, cum, pts[:, 1])
-    beyond = s > cum[-1]
-    if np.any(beyond):
+    if s[-1] > cum[-1]:  # s only grows: past the end from some k on
+        beyond = s > cum[-1]
         out[beyond] = pts[-1] + (s[beyond, None] - cum[-1]) * tail
     return out
 
