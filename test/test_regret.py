@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from lmpc_bridge.evaluation.rows import write_rows
 from lmpc_bridge.sim import SumoSim
 from lmpc_scripts import benchmark, methods, regret
 from lmpc_scripts import method_oracle as mo
@@ -160,12 +161,8 @@ def test_ray_and_two_pool_workers_give_the_rows_of_one(tmp_path: Path, monkeypat
     single = tmp_path / "single"
     (single / "decisions").mkdir(parents=True)
     with (run / "results.csv").open(newline="") as fh:
-        reader = csv.DictReader(fh)
-        recorded = [r for r in reader if r["family"] == "usi"]
-    with (single / "results.csv").open("w", newline="") as fh:
-        out = csv.DictWriter(fh, fieldnames=list(recorded[0]))
-        out.writeheader()
-        out.writerows(recorded)
+        write_rows(single / "results.csv",
+                   [r for r in csv.DictReader(fh) if r["family"] == "usi"])
     for log in (run / "decisions").glob("usi-101-*"):
         shutil.copy(log, single / "decisions" / log.name)
     split = regret.run(single, oracle=SMALLER, progress=False, workers=2)
