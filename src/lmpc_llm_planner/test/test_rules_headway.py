@@ -112,14 +112,18 @@ def test_conservative_lane_change_keeps_its_headway_to_the_leader_it_merges_behi
         road, planner_config, mpc_config):
     """Issue 20 (lane dev seeds: merging at once with its gentler braking, the conservative
     driver entered closer behind the new leader than normal did): changing lanes, the
-    conservative style drops back from the leader of the lane it enters; the leader of the
-    lane it leaves does not count, and the other styles leave the speed to the MPC."""
+    conservative style drops back from the leader of the lane it enters while that leader is
+    nearer than the follower there; the leader of the lane it leaves does not count, and the
+    other styles leave the speed to the MPC."""
     cons = "drive conservatively"
     here = car("here", x_m=52.25 + 8.0 + 2.25, v_mps=12.0)  # 8 m ahead in my lane
 
-    def changing(gap_new_m: float, instruction):
+    def changing(gap_new_m: float, instruction, behind_m=None):
         new = car("new", x_m=52.25 + gap_new_m + 2.25, v_mps=12.0, left=True)
-        inp = inputs(road_obs(road, [here, new]), planner_config, mpc_config,
+        others = [here, new]
+        if behind_m is not None:  # a follower in the lane it enters, its front behind_m back
+            others.append(car("back", x_m=47.75 - behind_m - 2.25, v_mps=12.0, left=True))
+        inp = inputs(road_obs(road, others), planner_config, mpc_config,
                      instruction=instruction)
         plan = dataclasses.replace(
             fresh_plan(inp), ego_index=next(c.candidate_id for c in inp.scene.ego_candidates
@@ -137,3 +141,9 @@ def test_conservative_lane_change_keeps_its_headway_to_the_leader_it_merges_behi
     for other in (None, "drive aggressively"):
         inp, plan = changing(20.0, other)
         assert not plan.speed_set and not plan.notes
+    # a follower in that lane nearer than the leader: dropping back would only trade the
+    # gap ahead for a smaller one behind; it keeps the middle of the gap
+    inp, plan = changing(20.0, cons, behind_m=15.0)
+    assert not plan.speed_set and not plan.notes
+    inp, plan = changing(20.0, cons, behind_m=30.0)
+    assert plan.speed_set and accel_of(inp, plan) < 0.0

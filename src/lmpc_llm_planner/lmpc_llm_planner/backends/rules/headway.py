@@ -6,8 +6,8 @@ stop short of it only); at least the style's time gap (``style_headway_s``). The
 MPC follows at its own (1 s) headway; too close, the rules brake gently (the mildest
 braking interval) until the gap has opened, and hold the speed while it is only a little
 short. During a lane change the leader of the lane being left does not count; the
-conservative style keeps its gap to the leader of the lane it enters (the others leave that
-to the MPC)."""
+conservative style keeps its gap to the leader of the lane it enters while that leader is
+nearer than the follower there (the others leave that to the MPC)."""
 from __future__ import annotations
 
 from typing import Optional
@@ -74,15 +74,16 @@ def wanted_gap_m(v_mps: float, leader_v_mps: float, headway_s: float = HEADWAY_S
                - vl * vl / (2.0 * LEADER_BRAKE_MPS2) + standoff_m)
 
 
-def entered_lane_leader(scene: Scene, plan: Plan) -> Optional[AgentView]:
-    """The nearest vehicle ahead in the lane the chosen lane-change candidate enters (the
+def entered_lane_neighbours(scene: Scene, plan: Plan
+                            ) -> tuple[Optional[AgentView], Optional[AgentView]]:
+    """(leader, follower) in the lane the chosen lane-change candidate enters (the
     candidate's other lane on the ego's edge)."""
     here = scene.lanes.get(scene.obs.ego.lane_id or "")
     if here is None:
-        return None
+        return None, None
     entered = [lid for lid in lanes_on_edge(scene, chosen_candidate(scene, plan), here.edge_id)
                if lid != here.id]
-    return lane_state(scene, entered[0])[0] if entered else None
+    return lane_state(scene, entered[0]) if entered else (None, None)
 
 
 def headway_rule(inp: RuleInputs, plan: Plan) -> None:
@@ -97,7 +98,12 @@ def headway_rule(inp: RuleInputs, plan: Plan) -> None:
         # the leader of the lane being left does not matter; the conservative driver keeps
         # its headway to the one of the lane it enters (lane dev seeds: merging at once
         # with its gentler braking it entered closer behind that leader than normal did)
-        leader = entered_lane_leader(scene, plan)
+        leader, follower = entered_lane_neighbours(scene, plan)
+        if leader is not None and follower is not None \
+                and follower.kin.gap_m <= leader.kin.gap_m:
+            # dropping back trades the gap ahead for the one behind: it keeps the middle of
+            # the gap it enters, not a headway the gap does not have
+            return
     else:
         return
     if leader is None or leader.agent.v_mps < inp.cfg.moving_speed_mps:
