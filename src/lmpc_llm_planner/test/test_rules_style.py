@@ -4,6 +4,8 @@ aggressive speeds up briskly only where the way is clear by the rules' own gap c
 never in an emergency decision; conservative slows down only where that blocks nobody."""
 from __future__ import annotations
 
+import dataclasses
+
 from rules_kit import car, road_obs
 from rules_units import fresh_plan, inputs
 
@@ -90,3 +92,48 @@ def test_conservative_holds_its_speed_on_a_free_road(road, planner_config, mpc_c
     inp, plan = _go(road_obs(road, v_mps=5.0), planner_config, mpc_config, None)
     assert plan.accel_index == mildest_accel(inp.accel)
     assert plan.weights["action"] == "normal"
+
+
+def test_conservative_does_not_hold_its_speed_while_changing_lanes(
+        road, planner_config, mpc_config):
+    """Issue 20 (lane dev 112, training 10006 / 10016 / 10029): a held band speed (action
+    weight "high") kept the conservative driver from the slowing the MPC did for the normal
+    one during the route's first lane change; it entered the slower lane faster and closer
+    behind its leader. Changing lanes it now eases off towards a slower leader of either
+    lane (held) and otherwise does not speed up, leaving the MPC its own slowing."""
+    cons = "drive conservatively"
+
+    def changing(agents, instruction=cons, v_mps=10.0):
+        inp = inputs(road_obs(road, agents, v_mps=v_mps), planner_config, mpc_config,
+                     instruction=instruction)
+        plan = dataclasses.replace(
+            fresh_plan(inp), ego_index=next(c.candidate_id for c in inp.scene.ego_candidates
+                                            if c.label == "change to the left lane"))
+        go_rule(inp, plan)
+        return inp, plan
+
+    # in the band (65-75 % of the 13.89 m/s limit), off a change: held
+    inp, plan = _go(road_obs(road, v_mps=10.0), planner_config, mpc_config, cons)
+    assert plan.accel_index == neutral(inp.accel) and plan.weights["action"] == "high"
+    # the same changing lanes on a clear road: no speed-up, not held
+    inp, plan = changing([])
+    assert plan.accel_index == neutral(inp.accel) and plan.weights["action"] != "high"
+    assert "do not speed up while I change lanes" in plan.notes[-1]
+    # below the band: no gentle speed-up while changing
+    inp, plan = changing([], v_mps=6.0)
+    assert plan.accel_index == neutral(inp.accel)
+    # a slower leader in the lane it enters (40 m ahead, 8 m/s): ease off, held
+    inp, plan = changing([car("new", x_m=52.25 + 40.0 + 2.25, v_mps=8.0, left=True)])
+    assert plan.accel_index == brake_index(inp.accel, 0.0, True)
+    assert plan.weights["action"] == "high" and "ease off towards the 8.0 m/s of new" \
+        in plan.notes[-1]
+    # ... or in the lane it leaves; out of range or not slower: nothing to ease off for
+    inp, plan = changing([car("old", x_m=52.25 + 40.0 + 2.25, v_mps=8.0)])
+    assert plan.accel_index == brake_index(inp.accel, 0.0, True)
+    for far in (car("new", x_m=52.25 + 70.0 + 2.25, v_mps=8.0, left=True),
+                car("new", x_m=52.25 + 40.0 + 2.25, v_mps=9.8, left=True)):
+        inp, plan = changing([far])
+        assert plan.accel_index == neutral(inp.accel)
+    # the normal driver changing lanes speeds up as before
+    inp, plan = changing([], instruction=None, v_mps=8.0)
+    assert plan.accel_index == mildest_accel(inp.accel)

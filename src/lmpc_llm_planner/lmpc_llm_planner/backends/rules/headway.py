@@ -50,6 +50,10 @@ short of a leader braking as hard as a car can, but not far enough to steer roun
 (issue 20: behind a platoon-speed leader normal and aggressive kept the same 19 m, and
 the aggressive driver was no faster)."""
 
+CONSERVATIVE_MERGE_RANGE_M = 60.0
+"""Conservative style, changing lanes: a leader of either lane within this gap that is
+slower than the ego makes it ease off (``slower_leader_in_change``)."""
+
 
 def style_headway_s(inp: RuleInputs) -> float:
     """The time gap the rules keep behind a leader for the instructed style."""
@@ -116,8 +120,9 @@ def headway_rule(inp: RuleInputs, plan: Plan) -> None:
     where = "in the lane I change to" if changing_lanes(scene, plan) else "in my lane"
     plan.attend(leader, f"leader {where}")
     plan.speed_set = True
-    plan.weights["action"] = "high"
-    if gap < HEADWAY_OPEN_FRACTION * want and v > vl - 1.0:
+    if gap < HEADWAY_OPEN_FRACTION * want and v > vl - 1.0 or (
+            inp.intent.style == "conservative" and slower_leader_in_change(inp, plan)):
+        plan.weights["action"] = "high"
         plan.accel_index = brake_index(inp.accel, 0.5, False)
         plan.notes.append(
             f"{leader.id} drives {gap:.0f} m ahead {where} at {vl:.1f} m/s; I drop "
@@ -125,6 +130,24 @@ def headway_rule(inp: RuleInputs, plan: Plan) -> None:
             "brakes hard.")
     else:
         plan.accel_index = neutral(inp.accel)
+        if not changing_lanes(scene, plan):
+            # changing lanes the speed is not held: the MPC slows for the lane being left
+            # as it does for the normal driver (a held speed kept it from that: lane dev 112)
+            plan.weights["action"] = "high"
         plan.notes.append(
             f"I follow {leader.id} ({gap:.0f} m ahead) and keep about {want:.0f} m, "
             "enough to brake or steer round it if it brakes hard.")
+
+
+def slower_leader_in_change(inp: RuleInputs, plan: Plan) -> Optional[AgentView]:
+    """While changing lanes: the slower of the leaders of the lane being left and the lane
+    entered, if it moves, is within ``CONSERVATIVE_MERGE_RANGE_M`` and is slower than the
+    ego by more than 0.5 m/s (None otherwise)."""
+    scene = inp.scene
+    if not changing_lanes(scene, plan):
+        return None
+    v = scene.obs.ego.v_mps
+    leaders = [lane_leader(scene), entered_lane_neighbours(scene, plan)[0]]
+    slower = [a for a in leaders if a is not None and a.kin.gap_m < CONSERVATIVE_MERGE_RANGE_M
+              and inp.cfg.moving_speed_mps <= a.agent.v_mps < v - 0.5]
+    return min(slower, key=lambda a: (a.agent.v_mps, a.id)) if slower else None

@@ -21,7 +21,7 @@ from lmpc_llm_planner.scene import AgentView
 
 from .emergency import brake_hard, brakes_hard
 from .intervals import accel_index, brake_index, mildest_accel, neutral, stop_index
-from .headway import wanted_gap_m
+from .headway import slower_leader_in_change, wanted_gap_m
 from .lane import beside_in_route_lane
 from .plan import Plan, RuleInputs, changing_lanes, chosen_candidate
 from .scene_helpers import (
@@ -163,12 +163,28 @@ def go_rule(inp: RuleInputs, plan: Plan) -> None:
     # hold_speed keeps a speed-up it could not slow down from (rab 10049)
     held = style != "normal" and not _enters_ring(
         inp, next_maneuver(scene.obs, scene.lanes))
-    if plan.hold_speed is not None and not slows:
+    easing = slower_leader_in_change(inp, plan) if style == "conservative" else None
+    if easing is not None:
+        # the held band speed kept the conservative driver from the slowing the MPC did for
+        # the normal one; it entered the slower lane faster and closer behind its leader
+        # (lane training seeds 10006, 10016, 10029; dev 112)
+        plan.accel_index = brake_index(inp.accel, 0.0, True)  # the mildest braking
+        plan.weights["action"] = "high"
+        plan.notes.append(f"The user asked for careful driving; while I change lanes I ease "
+                          f"off towards the {easing.agent.v_mps:.1f} m/s of {easing.id} "
+                          f"({easing.kin.gap_m:.0f} m ahead).")
+    elif plan.hold_speed is not None and not slows:
         # a junction rule found a speed-up unsafe: keep the speed (with the action weight
         # "normal" the MPC would track the speed limit rather than the neutral bias)
         plan.accel_index = neutral(inp.accel)
         plan.weights["action"] = "high"
         plan.notes.append(plan.hold_speed)
+    elif style == "conservative" and changing_lanes(scene, plan):
+        # no held speed while changing lanes: the MPC slows as it does for the normal driver
+        # (a held band speed kept it from that: lane dev 112), without the normal's speed-up
+        plan.accel_index = neutral(inp.accel)
+        plan.notes.append("The user asked for careful driving; I do not speed up while I "
+                          "change lanes.")
     elif style == "aggressive" and ego.v_mps < AGGRESSIVE_SPEED_FRACTION * limit:
         plan.accel_index = accel_index(inp.accel, AGGRESSIVE_ACCEL_MPS2)
         if held:
