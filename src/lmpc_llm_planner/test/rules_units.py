@@ -3,6 +3,8 @@ observation as the rules backend builds them, and a fresh plan. Plain functions
 (conftest.py puts this folder on ``sys.path``)."""
 from __future__ import annotations
 
+import dataclasses
+
 from lmpc_llm_planner.backends.rules.backend import rule_inputs
 from lmpc_llm_planner.backends.rules.intervals import mid, neutral
 from lmpc_llm_planner.backends.rules.plan import Plan, RuleInputs
@@ -23,6 +25,13 @@ def inputs(obs, planner_config, mpc_config, *, instruction=None, mode="normal",
 def fresh_plan(inp: RuleInputs) -> Plan:
     """The plan every request starts from (neutral intervals, normal weights)."""
     return Plan(accel_index=neutral(inp.accel), steer_index=neutral(inp.steer))
+
+
+def changing_left_plan(inp: RuleInputs) -> Plan:
+    """A fresh plan whose chosen candidate is "change to the left lane"."""
+    return dataclasses.replace(
+        fresh_plan(inp), ego_index=next(c.candidate_id for c in inp.scene.ego_candidates
+                                        if c.label == "change to the left lane"))
 
 
 def accel_of(inp: RuleInputs, plan: Plan) -> float:

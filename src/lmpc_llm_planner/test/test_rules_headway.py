@@ -6,7 +6,7 @@ import dataclasses
 
 import pytest
 from rules_kit import car, road_obs
-from rules_units import accel_of, fresh_plan, inputs
+from rules_units import accel_of, changing_left_plan, fresh_plan, inputs
 
 from lmpc_llm_planner.backends.rules.headway import (
     AGGRESSIVE_STANDOFF_M, CONSERVATIVE_HEADWAY_S, CONSERVATIVE_OPEN_ROAD_HEADWAY_S,
@@ -125,9 +125,7 @@ def test_conservative_lane_change_keeps_its_headway_to_the_leader_it_merges_behi
             others.append(car("back", x_m=47.75 - behind_m - 2.25, v_mps=12.0, left=True))
         inp = inputs(road_obs(road, others), planner_config, mpc_config,
                      instruction=instruction)
-        plan = dataclasses.replace(
-            fresh_plan(inp), ego_index=next(c.candidate_id for c in inp.scene.ego_candidates
-                                            if c.label == "change to the left lane"))
+        plan = changing_left_plan(inp)
         headway_rule(inp, plan)
         return inp, plan
 

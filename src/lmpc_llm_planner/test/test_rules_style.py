@@ -4,10 +4,8 @@ aggressive speeds up briskly only where the way is clear by the rules' own gap c
 never in an emergency decision; conservative slows down only where that blocks nobody."""
 from __future__ import annotations
 
-import dataclasses
-
 from rules_kit import car, road_obs
-from rules_units import fresh_plan, inputs
+from rules_units import changing_left_plan, fresh_plan, inputs
 
 from lmpc_llm_planner.backends.rules.intervals import accel_index, brake_index, mildest_accel
 from lmpc_llm_planner.backends.rules.intervals import neutral
@@ -106,9 +104,7 @@ def test_conservative_does_not_hold_its_speed_while_changing_lanes(
     def changing(agents, instruction=cons, v_mps=10.0):
         inp = inputs(road_obs(road, agents, v_mps=v_mps), planner_config, mpc_config,
                      instruction=instruction)
-        plan = dataclasses.replace(
-            fresh_plan(inp), ego_index=next(c.candidate_id for c in inp.scene.ego_candidates
-                                            if c.label == "change to the left lane"))
+        plan = changing_left_plan(inp)
         go_rule(inp, plan)
         return inp, plan
 
