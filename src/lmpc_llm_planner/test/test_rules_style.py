@@ -115,9 +115,12 @@ def test_conservative_does_not_hold_its_speed_while_changing_lanes(
     inp, plan = changing([])
     assert plan.accel_index == neutral(inp.accel) and plan.weights["action"] != "high"
     assert "do not speed up while I change lanes" in plan.notes[-1]
-    # below the band: no gentle speed-up while changing
+    # below the band: no gentle speed-up while changing; above it the held mild braking
     inp, plan = changing([], v_mps=6.0)
     assert plan.accel_index == neutral(inp.accel)
+    inp, plan = changing([], v_mps=11.0)
+    assert plan.accel_index == brake_index(inp.accel, 0.0, True)
+    assert plan.weights["action"] == "high"
     # a slower leader in the lane it enters (40 m ahead, 8 m/s): ease off, held
     inp, plan = changing([car("new", x_m=52.25 + 40.0 + 2.25, v_mps=8.0, left=True)])
     assert plan.accel_index == brake_index(inp.accel, 0.0, True)

@@ -179,9 +179,10 @@ def go_rule(inp: RuleInputs, plan: Plan) -> None:
         plan.accel_index = neutral(inp.accel)
         plan.weights["action"] = "high"
         plan.notes.append(plan.hold_speed)
-    elif style == "conservative" and changing_lanes(scene, plan):
+    elif style == "conservative" and changing_lanes(scene, plan) and not slows:
         # no held speed while changing lanes: the MPC slows as it does for the normal driver
         # (a held band speed kept it from that: lane dev 112), without the normal's speed-up
+        # (above 75 % of the limit the band's held mild braking below still applies)
         plan.accel_index = neutral(inp.accel)
         plan.notes.append("The user asked for careful driving; I do not speed up while I "
                           "change lanes.")
