@@ -14,7 +14,7 @@ from lmpc_llm_planner.backends.rules import travel_time_s
 from lmpc_llm_planner.backends.rules.intervals import mid
 from lmpc_llm_planner.backends.rules.junction import go_accel_mps2
 from lmpc_llm_planner.backends.rules.left_turn import (
-    left_turn_rule, oncoming_conflict, steer_for_path,
+    crossing_conflict, left_turn_rule, oncoming_conflict, steer_for_path,
 )
 from lmpc_llm_planner.route import next_maneuver
 
@@ -219,3 +219,38 @@ def test_aggressive_takes_a_gap_normal_refuses(left_turn_map, obs_factory, oncom
             assert left_turn_rule(normal, fresh_plan(normal)) == "yield"
             assert left_turn_rule(aggressive, fresh_plan(aggressive)) == "go"
     assert found >= 2  # the positions swept do cover the band between the two gaps
+
+
+def test_a_crossing_car_starting_into_the_junction_is_yielded_to(
+        left_turn_map, obs_factory, planner_config, mpc_config):
+    """usi training seed 10005: a car of the crossing road moved off its line with the
+    ego (SUMO does not see an ego placed by ``moveToXY`` coming until it is on the
+    internal lane) and the two met in the junction. A crossing car *starting into the
+    junction* (slow, accelerating, near the crossing) is now a conflict of the turn; one
+    standing at its line, or braking towards it, is not (it waits: counting every
+    moving crossing car put Table I's usi 19 off route)."""
+    def crossing_car(v_mps, a_mps2):
+        # eastbound from the west arm, its front ~7 m before the ego's turn path
+        car = syn.agent("cross0", x_m=-10.0, y_m=-1.6, yaw_rad=0.0, v_mps=v_mps)
+        return car.model_copy(update={"a_mps2": a_mps2})
+
+    def decide(car):
+        inp = _inputs(obs_factory(left_turn_map, ego_y_m=-10.0, ego_v_mps=0.5, agents=[car]),
+                      planner_config, mpc_config)
+        man = next_maneuver(inp.scene.obs, inp.scene.lanes,
+                            max_distance_m=inp.cfg.junction_attention_m)
+        view = inp.scene.agents[0]
+        plan = fresh_plan(inp)
+        verdict = left_turn_rule(inp, plan)
+        return crossing_conflict(inp, view, man, go_accel_mps2(inp)), verdict, plan, inp
+
+    conflict, verdict, plan, inp = decide(crossing_car(2.0, 3.0))
+    assert conflict is not None and conflict.what == "crossing"
+    assert verdict == "yield" and accel_of(inp, plan) <= 0.0
+    assert plan.attention == {"cross0": "crossing, conflicts with my turn"}
+    assert "must yield to crossing cross0" in plan.notes[-1]
+    for v_mps, a_mps2 in ((0.0, 0.0), (4.0, -2.0), (10.0, 0.0)):
+        # standing at its line, braking to it, or a through car far from starting
+        conflict, verdict, plan, _ = decide(crossing_car(v_mps, a_mps2))
+        assert conflict is None and verdict == "go", (v_mps, a_mps2)
+        assert plan.attention == {}

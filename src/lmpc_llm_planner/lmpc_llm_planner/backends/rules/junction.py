@@ -38,6 +38,8 @@ class Conflict:
     zone_start_m: float
     """Arc length along the junction path where the agent's lane (its box width plus a
     margin) begins: the ego must not stop beyond it."""
+    what: str = "oncoming"
+    """How the agent comes: "oncoming" or "crossing" (a left turn's crossing traffic)."""
 
     @property
     def gap_s(self) -> float:

@@ -27,6 +27,11 @@ from .junction import (
 from .plan import Plan, RuleInputs
 from .scene_helpers import queued_behind
 
+STARTING_MAX_MPS = 6.0
+STARTING_MIN_ACCEL_MPS2 = 0.5
+STARTING_WITHIN_M = 12.0
+"""A crossing vehicle starting into the junction (``crossing_conflict``): slower than
+this, accelerating at least this much, its front at most this far from the crossing."""
 CROSSING_MISS_M = 4.0
 """An agent's ray passing the ego's path farther than this does not cross it."""
 
@@ -49,12 +54,14 @@ def left_turn_rule(inp: RuleInputs, plan: Plan) -> str:
     conflicts = []
     for view in inp.scene.agents:
         c = oncoming_conflict(inp, view, man, yield_dirs, go_accel)
+        if c is None:
+            c = crossing_conflict(inp, view, man, go_accel)
         if c is not None:
             conflicts.append(c)
     if man.inside_junction:
         plan.steer_index = steer_for_path(man, inp.steer)
     for c in conflicts:
-        plan.attend(c.view, "oncoming, conflicts with my turn")
+        plan.attend(c.view, f"{c.what}, conflicts with my turn")
     # the ego's front to the first oncoming lane it must cross (the conflict zone)
     zone_m = min((c.zone_start_m for c in conflicts), default=None)
     front_to_zone = None if zone_m is None else \
@@ -139,7 +146,7 @@ def _turn_yield(inp: RuleInputs, plan: Plan, man: Maneuver, unsafe: list[Conflic
         # lane when an oncoming car came near (usi seed 6)
         plan.weights.update(action="high", safety="high")
         reason = (
-            f"I turn {turn} and must yield to oncoming {worst.view.id}: it reaches the "
+            f"I turn {turn} and must yield to {worst.what} {worst.view.id}: it reaches the "
             f"crossing in {worst.t_agent_s:.1f} s, I would need {worst.t_clear_s:.1f} s "
             f"to clear it (gap {worst.gap_s:.1f} s, enough from {margin:.1f} s)."
         )
@@ -175,6 +182,33 @@ def oncoming_conflict(inp: RuleInputs, view: AgentView, man: Maneuver,
         lk.direction in yield_dirs + ("t",) for lk in lane.successors
     ):
         return None
+    return _conflict(inp, view, man, go_accel_mps2, "oncoming")
+
+
+def crossing_conflict(inp: RuleInputs, view: AgentView, man: Maneuver,
+                      go_accel_mps2: float) -> Optional[Conflict]:
+    """The conflict with a vehicle of the crossing road that moves towards the ego's turn.
+    It should yield, but a SUMO car does not see an ego placed by ``moveToXY`` coming
+    until that is on the junction's internal lane: one that has started from its line
+    keeps going (usi training seed 10005: it moved off with the ego, both then stood in
+    the junction a few cm apart, and the ego crept into it). Standing ones wait."""
+    cfg = inp.cfg
+    ag = view.agent
+    off_rad = abs(abs(wrap_rad(ag.yaw_rad - man.approach_yaw_rad)) - 0.5 * math.pi)
+    if off_rad > cfg.oncoming_heading_tol_rad or not (
+            cfg.moving_speed_mps <= ag.v_mps < STARTING_MAX_MPS
+            and ag.a_mps2 >= STARTING_MIN_ACCEL_MPS2):
+        return None
+    c = _conflict(inp, view, man, go_accel_mps2, "crossing")
+    if c is None or c.t_agent_s * ag.v_mps > STARTING_WITHIN_M:
+        return None
+    return c
+
+
+def _conflict(inp: RuleInputs, view: AgentView, man: Maneuver, go_accel_mps2: float,
+              what: str) -> Optional[Conflict]:
+    cfg = inp.cfg
+    ag = view.agent
     cr = crossing(man.path, x_m=ag.x_m, y_m=ag.y_m, yaw_rad=ag.yaw_rad)
     if cr is None or cr.miss_m > CROSSING_MISS_M:
         return None
@@ -210,7 +244,7 @@ def oncoming_conflict(inp: RuleInputs, view: AgentView, man: Maneuver,
             vmax_mps=cfg.turn_speed_mps,
         )
     zone = cr.ego_s_m - 0.5 * ag.width_m - CLEAR_MARGIN_M
-    return Conflict(view, cr.ego_s_m, t_agent, t_clear, zone)
+    return Conflict(view, cr.ego_s_m, t_agent, t_clear, zone, what)
 
 
 def steer_for_path(man: Maneuver, steer: Intervals) -> int:
