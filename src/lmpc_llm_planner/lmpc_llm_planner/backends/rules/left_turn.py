@@ -190,8 +190,9 @@ def crossing_conflict(inp: RuleInputs, view: AgentView, man: Maneuver,
     """The conflict with a vehicle of the crossing road that moves towards the ego's turn.
     It should yield, but a SUMO car does not see an ego placed by ``moveToXY`` coming
     until that is on the junction's internal lane: one that has started from its line
-    keeps going (usi training seed 10005: it moved off with the ego, both then stood in
-    the junction a few cm apart, and the ego crept into it). Standing ones wait."""
+    keeps going (usi training seed 10005: it moved off with the ego, SUMO stopped it in
+    the junction, and it restarted into the ego passing in front of it). Standing ones
+    wait."""
     cfg = inp.cfg
     ag = view.agent
     off_rad = abs(abs(wrap_rad(ag.yaw_rad - man.approach_yaw_rad)) - 0.5 * math.pi)
