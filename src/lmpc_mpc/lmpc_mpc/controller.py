@@ -361,7 +361,15 @@ class MpcController(CrossingRules):
             u_s = self._plan[self._plan_age]
             pred = self._plan_pred[self._plan_age:] if self._plan_pred is not None else None
             self.predicted = pred
-            return self._emit(obs, (float(u_s[0]), float(u_s[1])), "shifted",
+            a_s = float(u_s[0])
+            if self.stale.go_refused_for and a_s > 0.0:
+                # the crossing rule has just refused the decision's go: the old plan's
+                # steer is kept, its acceleration is not (usi training 10095 accelerated
+                # into the junction on a shifted go plan for three failed solves and
+                # stopped with its nose in the oncoming lane; braking with the steer eased
+                # to 0 left si 10076 +29 and usi 10032 in a worse place)
+                a_s = 0.0
+            return self._emit(obs, (a_s, float(u_s[1])), "shifted",
                               f"shifted plan ({result.status})"[:200], result.solve_time_s,
                               dec_id, ref_id, attended, pred)
         return self._brake(obs, f"brake ({result.status})"[:200], decision_id=dec_id,
@@ -455,7 +463,8 @@ class MpcController(CrossingRules):
                 ag.id not in preds or ag.id in hedged) else None
             cps = preds.get(ag.id, own)
             fc = self._zone_forecast(ag.id, ag, cps, obs)
-            obstacles.append(Obstacle(ag.id, fc, ag.length_m, ag.width_m))
+            obstacles.append(Obstacle(ag.id, fc, ag.length_m, ag.width_m,
+                                      yaw_rad=ag.yaw_rad))
             speeds.append(ag.v_mps)
             if ag.id in hedged:
                 # a close agent is also kept clear of along the MPC's own forecast: the

@@ -41,6 +41,9 @@ _STALE_LOG_DECISIONS = 256
 _BESIDE_STANDING_MPS = 0.5
 """An attended agent slower than this whose forecast stays laterally clear of the path
 is flagged ``Obstacle.beside`` (no headway in its safety zone)."""
+_BODY_SPEED_MPS = 2.0
+"""An agent slower than this is on the path when a corner of its box is, not only when its
+centre is (``_body_on_path``)."""
 _HEDGE_APART_M = 0.5
 """A close agent's own forecast is added beside the decision's prediction of it when the
 two are farther apart than this at some step (see ``MpcController._problem``)."""
@@ -93,6 +96,28 @@ def _time_to_m(dist_m: float, v_mps: float, accel_mps2: float) -> float:
     if accel_mps2 <= 1e-9:
         return dist_m / v if v > 1e-9 else math.inf
     return (-v + math.sqrt(v * v + 2.0 * accel_mps2 * dist_m)) / accel_mps2
+
+
+def _body_on_path(line: _Polyline, ob: Obstacle, clear_m: float) -> Optional[float]:
+    """The arc length of the nearest corner of ``ob``'s box now (its first forecast
+    position, its heading) that lies within ``clear_m`` of the path ahead of the ego; None
+    if none does, or its heading is unknown.
+
+    The "on the path" test measures an agent's centre against half the two widths; a car
+    standing at an angle beside the path reaches it with a corner the test does not see
+    (usi training 10032: the ego, steering at its limit in a left turn, swept its front
+    corner into an oncoming car standing ~35 degrees to the path; docs/lmpc_mpc.md, "The
+    ego's body, not its centre")."""
+    if ob.yaw_rad is None:
+        return None
+    c, s = math.cos(ob.yaw_rad), math.sin(ob.yaw_rad)
+    hl, hw = 0.5 * ob.length_m, 0.5 * ob.width_m
+    x0, y0 = float(ob.xy_m[0, 0]), float(ob.xy_m[0, 1])
+    corners = np.array([(x0 + dl * c - dw * s, y0 + dl * s + dw * c)
+                        for dl, dw in ((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw))])
+    s_c, d_c = line.project_many(corners)
+    hit = (d_c < clear_m) & (s_c > 0.0) & (s_c < line.length_m - 1e-6)
+    return float(np.min(s_c[hit])) if np.any(hit) else None
 
 
 class CrossingRules:
@@ -158,8 +183,17 @@ class CrossingRules:
             lat_clear = 0.5 * (veh.width_m + ob.width_m) + cfg.safety_lateral_gap_m
             gap = cfg.safety_gap_m + 0.5 * (veh.length_m + ob.length_m)
             s_k = s_all[i]
-            on = (d_all[i] < lat_clear) & (s_k > 0.0) & (s_k < line.length_m - 1e-6)
-            if v < _BESIDE_STANDING_MPS and not np.any(d_all[i] < lat_clear):
+            d_k = d_all[i]
+            if v < _BODY_SPEED_MPS and not np.any((d_k < lat_clear) & (s_k > 0.0)):
+                body = _body_on_path(line, ob, 0.5 * veh.width_m + cfg.safety_lateral_gap_m)
+                if body is not None:
+                    # a slow agent whose body reaches the path where its centre does not:
+                    # on the path, standing where its nearest corner reaches it (half its
+                    # length on, as the gaps count from centres): the ego stops short of it
+                    s_k = np.full(n + 1, body + 0.5 * ob.length_m)
+                    d_k = np.zeros(n + 1)
+            on = (d_k < lat_clear) & (s_k > 0.0) & (s_k < line.length_m - 1e-6)
+            if v < _BESIDE_STANDING_MPS and not np.any(d_k < lat_clear):
                 self._beside.add(i)  # standing beside the path: no headway (``Obstacle.beside``)
             s_t, d_t = tails[i]
             on_t = (d_t < lat_clear) & (s_t > 0.0) & (s_t < line.length_m - 1e-6)

@@ -57,6 +57,8 @@ class Obstacle:
     a tight turn out of a junction, a car standing at the stop line of the opposite lane
     of the road turned into sits nearly dead ahead in the frame of the turn's tangent,
     and its headway held the ego in the junction for good (issue 21)."""
+    yaw_rad: Optional[float] = None
+    """The agent's heading now (None: unknown, e.g. a virtual obstacle)."""
 
 
 def slots_for(config: MpcConfig, n_obstacles: int) -> int:
