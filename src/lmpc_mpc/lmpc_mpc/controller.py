@@ -458,13 +458,15 @@ class MpcController(CrossingRules):
             if (ag.id not in preds or ag.id in hedged) and ag.v_mps >= 0.05:
                 self._baseline_curve(obs, ag)
         speeds: list[float] = []
+        ego_in_junction = (obs.ego.lane_id or "").startswith(":")
         for ag in agents[:slots]:
             own = self._agent_curves[ag.id][2] if ag.v_mps >= 0.05 and (
                 ag.id not in preds or ag.id in hedged) else None
             cps = preds.get(ag.id, own)
             fc = self._zone_forecast(ag.id, ag, cps, obs)
             obstacles.append(Obstacle(ag.id, fc, ag.length_m, ag.width_m,
-                                      yaw_rad=ag.yaw_rad))
+                                      yaw_rad=ag.yaw_rad, junction=ego_in_junction or (
+                                          ag.lane_id or "").startswith(":")))
             speeds.append(ag.v_mps)
             if ag.id in hedged:
                 # a close agent is also kept clear of along the MPC's own forecast: the

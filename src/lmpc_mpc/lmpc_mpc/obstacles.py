@@ -59,6 +59,9 @@ class Obstacle:
     and its headway held the ego in the junction for good (issue 21)."""
     yaw_rad: Optional[float] = None
     """The agent's heading now (None: unknown, e.g. a virtual obstacle)."""
+    junction: bool = False
+    """The agent or the ego is on a junction's internal lane now: a slow agent's box
+    corners are tested against the path (``crossing._body_on_path``)."""
 
 
 def slots_for(config: MpcConfig, n_obstacles: int) -> int:
