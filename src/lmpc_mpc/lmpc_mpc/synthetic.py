@@ -210,3 +210,25 @@ def follow_lead_car(controller: Any, steps: int, dt_s: float
         x = simulate_bicycle(x, np.array([[ctl.accel_mps2, ctl.steer_rad]]), dt_s=dt_s)[1]
         states.append([float(v) for v in x])
     return controls, states
+
+
+def closed_loop(controller: Any, map_: MapSnapshot, x0: Sequence[float], steps: int,
+                agents: Any = lambda t: ()) -> list[tuple[float, np.ndarray, Any]]:
+    """Drive ``controller`` on ``map_`` for ``steps`` control steps from the state ``x0``
+    (x, y, yaw, v), each control applied to the MPC's own bicycle model
+    (``solver.simulate_bicycle``); ``agents(t)``: the agents at time t. Returns (t, state
+    after the step, control) per step. The tests' closed loop."""
+    from lmpc_mpc.solver import simulate_bicycle  # CasADi only where a loop is driven
+
+    dt = controller.config.dt_s
+    x = np.array(x0, dtype=float)
+    log = []
+    for k in range(steps):
+        t = k * dt
+        ego = ego_state(x_m=float(x[0]), y_m=float(x[1]),
+                        yaw_rad=float(math.remainder(x[2], 2 * math.pi)), v_mps=float(x[3]),
+                        stamp_s=t, seq=k)
+        ctl = controller.compute(observation(map_, ego, agents(t)))
+        x = simulate_bicycle(x, np.array([[ctl.accel_mps2, ctl.steer_rad]]), dt_s=dt)[1]
+        log.append((t, x.copy(), ctl))
+    return log

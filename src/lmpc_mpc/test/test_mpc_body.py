@@ -22,7 +22,7 @@ from lmpc_mpc.config import load_mpc_config
 from lmpc_mpc.controller import MpcController
 from lmpc_mpc.obstacles import Obstacle
 from lmpc_mpc.polyline import Polyline
-from lmpc_mpc.solver import MpcSolver, simulate_bicycle
+from lmpc_mpc.solver import MpcSolver
 
 CFG = load_mpc_config()
 CLEAR_M = 0.9 + CFG.safety_lateral_gap_m  # the ego's half width + the lateral gap
@@ -68,17 +68,9 @@ def _drive(solver: MpcSolver, car: Agent = CAR) -> list[np.ndarray]:
     """12 s from 8 m/s on the straight road, the MPC baseline, the car standing."""
     solver.reset()
     ctrl = MpcController(CFG, solver=solver)
-    m = S.straight_road()
-    x = np.array([10.0, -4.8, 0.0, 8.0])
-    states = []
-    for k in range(120):
-        ego = S.ego_state(x_m=float(x[0]), y_m=float(x[1]), yaw_rad=float(x[2]),
-                          v_mps=float(x[3]), stamp_s=k * CFG.dt_s, seq=k)
-        ctl = ctrl.compute(S.observation(m, ego, [car]))
-        x = simulate_bicycle(x, np.array([[ctl.accel_mps2, ctl.steer_rad]]),
-                             dt_s=CFG.dt_s)[1]
-        states.append(x.copy())
-    return states
+    log = S.closed_loop(ctrl, S.straight_road(), (10.0, -4.8, 0.0, 8.0), 120,
+                        lambda t: [car])
+    return [x for _, x, _ in log]
 
 
 def test_the_ego_stops_short_of_the_corner(solver: MpcSolver,

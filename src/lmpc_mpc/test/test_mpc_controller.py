@@ -10,7 +10,7 @@ from lmpc_mpc import synthetic as S
 from lmpc_mpc.closeness import closeness
 from lmpc_mpc.config import load_mpc_config
 from lmpc_mpc.controller import MpcController
-from lmpc_mpc.solver import MpcSolver, simulate_bicycle
+from lmpc_mpc.solver import MpcSolver
 
 CFG = load_mpc_config()
 
@@ -22,17 +22,9 @@ def solver() -> MpcSolver:
 
 def _run(ctrl: MpcController, m, x0, steps: int,
          agents: Callable[[float], Sequence[Agent]] = lambda t: ()):
-    x = np.array(x0, dtype=float)
-    log = []
-    for k in range(steps):
-        t = k * CFG.dt_s
-        ego = S.ego_state(x_m=float(x[0]), y_m=float(x[1]),
-                          yaw_rad=float(math.remainder(x[2], 2 * math.pi)),
-                          v_mps=float(x[3]), stamp_s=t, seq=k)
-        ctl = ctrl.compute(S.observation(m, ego, agents(t)))
+    log = S.closed_loop(ctrl, m, x0, steps, agents)
+    for _, _, ctl in log:
         assert math.isfinite(ctl.accel_mps2) and math.isfinite(ctl.steer_rad)
-        x = simulate_bicycle(x, np.array([[ctl.accel_mps2, ctl.steer_rad]]), dt_s=CFG.dt_s)[1]
-        log.append((t, x.copy(), ctl))
     return log
 
 

@@ -132,16 +132,11 @@ def test_rti_controller_stops_behind_a_stopped_car(rti: MpcSolver) -> None:
     ctrl = MpcController(RTI, solver=rti)
     m = S.straight_road()
     car = S.agent("car1", x_m=80.0, y_m=-4.8, yaw_rad=0.0, lane_id="E0_0")
-    x = np.array([10.0, -4.8, 0.0, 10.0])
-    ys = []
-    for k in range(120):
-        ego = S.ego_state(x_m=float(x[0]), y_m=float(x[1]), yaw_rad=float(x[2]),
-                          v_mps=float(x[3]), stamp_s=k * RTI.dt_s, seq=k)
-        ctl = ctrl.compute(S.observation(m, ego, [car]))
+    log = S.closed_loop(ctrl, m, (10.0, -4.8, 0.0, 10.0), 120, lambda t: [car])
+    for _, _, ctl in log:
         assert ctl.mode == "baseline", ctl.solver_status
-        x = simulate_bicycle(x, np.array([[ctl.accel_mps2, ctl.steer_rad]]),
-                             dt_s=RTI.dt_s)[1]
-        ys.append(x[1])
+    x = log[-1][1]
+    ys = [s[1] for _, s, _ in log]
     gap = 80.0 - x[0] - 4.5
     assert x[3] < 0.3 and 0.8 < gap < 6.0
     assert max(abs(y + 4.8) for y in ys) < 0.5
