@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -141,10 +142,11 @@ def test_infeasible_start_fails_safely(solver: MpcSolver) -> None:
     assert -veh.max_decel_mps2 <= ctl.accel_mps2 < 0.0 and abs(ctl.steer_rad) <= 1e-9
 
 
-def test_failures_give_shifted_plan_then_brake_then_recover(solver: MpcSolver) -> None:
-    solver.reset()
-    ctrl = MpcController(CFG, solver=solver)
-    m = S.straight_road()
+def _run_with_failures(solver: MpcSolver, ctrl: MpcController, fail: range, steps: int,
+                       v0_mps: float = 6.0) -> tuple[list[str], list, np.ndarray]:
+    """``steps`` closed-loop steps on the straight road from ``v0_mps``, every solve of the
+    steps in ``fail`` failing; the modes, the controls and the plan of the step before
+    the first failure."""
     real = solver.solve
     failing = {"on": False}
 
@@ -155,16 +157,17 @@ def test_failures_give_shifted_plan_then_brake_then_recover(solver: MpcSolver) -
         return real(problem)
 
     solver.solve = solve  # type: ignore[method-assign]
+    m = S.straight_road()
     try:
-        x = np.array([10.0, -4.8, 0.0, 6.0])
+        x = np.array([10.0, -4.8, 0.0, v0_mps])
         modes, ctls = [], []
         plan = None
-        for k in range(12):
-            failing["on"] = 3 <= k < 9
+        for k in range(steps):
+            failing["on"] = k in fail
             ego = S.ego_state(x_m=float(x[0]), y_m=float(x[1]), yaw_rad=float(x[2]),
                               v_mps=float(x[3]), stamp_s=k * CFG.dt_s, seq=k, lane_id="E0_0")
             ctl = ctrl.compute(S.observation(m, ego))
-            if k == 2:
+            if k == fail.start - 1:
                 plan = ctrl._plan.copy()
             modes.append(ctl.mode)
             ctls.append(ctl)
@@ -173,6 +176,14 @@ def test_failures_give_shifted_plan_then_brake_then_recover(solver: MpcSolver) -
                                  dt_s=CFG.dt_s)[1]
     finally:
         del solver.solve
+    assert plan is not None
+    return modes, ctls, plan
+
+
+def test_failures_give_shifted_plan_then_brake_then_recover(solver: MpcSolver) -> None:
+    solver.reset()
+    ctrl = MpcController(CFG, solver=solver)
+    modes, ctls, plan = _run_with_failures(solver, ctrl, range(3, 9), 12)
     n_shift = CFG.shifted_plan_steps
     assert modes[:3] == ["baseline"] * 3
     assert modes[3:3 + n_shift] == ["shifted"] * n_shift
@@ -187,6 +198,33 @@ def test_failures_give_shifted_plan_then_brake_then_recover(solver: MpcSolver) -
         assert c.steer_rad == 0.0
     st = ctrl.stats()
     assert st.solver_failures == 6 and st.shifted == n_shift
+
+
+def test_a_shifted_plan_does_not_accelerate_while_a_go_is_refused(
+        solver: MpcSolver, monkeypatch: pytest.MonkeyPatch) -> None:
+    """usi training seed 10095: a shifted go plan carried the ego on into a turn the
+    crossing rule had just refused. While ``stale.go_refused_for`` is set, the shifted
+    control keeps the plan's steer and cuts its acceleration to 0; otherwise it is the
+    plan's (the same run without the refusal)."""
+    n_shift = CFG.shifted_plan_steps
+    runs = {}
+    for refused in (False, True):
+        solver.reset()
+        ctrl = MpcController(CFG, solver=solver)
+        if refused:
+            note = ctrl._note_stale
+            monkeypatch.setattr(ctrl, "_note_stale", lambda d, v: note(
+                d, replace(v, go_refused_for=("onc3",))))
+        runs[refused] = _run_with_failures(solver, ctrl, range(3, 3 + n_shift), 3 + n_shift,
+                                           v0_mps=3.0)
+    for refused, (modes, ctls, plan) in runs.items():
+        assert modes[3:] == ["shifted"] * n_shift
+        for i in range(n_shift):
+            c, (a_plan, d_plan) = ctls[3 + i], plan[1 + i]
+            assert a_plan > 0.5  # the plan speeds up from 3 m/s
+            assert c.steer_rad == pytest.approx(d_plan, abs=1e-9)
+            assert c.accel_mps2 == pytest.approx(0.0 if refused else a_plan, abs=1e-9)
+            assert ("go" in c.stale) is refused
 
 
 if __name__ == "__main__":
