@@ -496,6 +496,14 @@ class MpcSolver:
             # shift by one stage, keep the last control, then re-anchor on x0
             us_s = np.vstack([us[1:n], us[n - 1:n]])
             xs_s = np.vstack([xs[1:], xs[-1:]])
+            # the ego's yaw arrives wrapped to (-pi, pi]; the plan's yaw is continuous.
+            # Heading across +-pi between two steps, the shifted plan lay 2 pi from x0's
+            # yaw: a 2 pi jump between its first two stages, which the solver "closed"
+            # by a loop at full steer (rab training seed 10089: a planned circle into
+            # the roundabout's island, the exit missed, the ego off its route)
+            turns = round((float(x0[2]) - float(xs_s[0, 2])) / (2.0 * math.pi))
+            if turns:
+                xs_s[:, 2] += 2.0 * math.pi * turns
             xs_s[0] = x0
         else:
             us_s = np.zeros((n, NU))
