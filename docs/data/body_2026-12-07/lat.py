@@ -1,10 +1,12 @@
 """README's late-decision table after the body check (2026-12-07, seventh stop): lmpc-rules
 O.C. (collisions + fails) per family and latency, every family re-run on main 0f7a9b6
 (t1/ for 0 s, p1.5/ p2.5/ p5/). Run from the repository root:
-python3 docs/data/body_2026-12-07/lat.py"""
+python3 docs/data/body_2026-12-07/lat.py [DIR/] (another folder with the same layout, e.g.
+docs/data/yawwrap_2026-12-07/, the eighth stop's rows)"""
 import csv
+import sys
 from statistics import mean
-H = "docs/data/body_2026-12-07/"
+H = sys.argv[1] if len(sys.argv) > 1 else "docs/data/body_2026-12-07/"
 fams = ["si", "usi", "lane", "rab", "eoa"]
 base = None
 for L in ["0", "1.5", "2.5", "5"]:
