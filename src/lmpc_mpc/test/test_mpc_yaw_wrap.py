@@ -43,7 +43,7 @@ def test_the_warm_start_follows_x0_across_pi(solver: MpcSolver) -> None:
 
 
 def test_heading_west_across_pi_needs_no_fallback(solver: MpcSolver) -> None:
-    """Westbound on ``B_0`` (y = 60), 0.5 m left of the lane: the ego steers back and its
+    """Westbound on ``B_0`` (y = 60), 0.5 m right of the lane (north): it steers back and its
     yaw crosses pi (the bridge's wrapped yaw jumps from +pi to -pi)."""
     solver.reset()
     ctrl = MpcController(CFG, solver=solver)
