@@ -7,7 +7,7 @@ controller need no simulator.
 from __future__ import annotations
 
 import math
-from typing import Any, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
@@ -213,11 +213,15 @@ def follow_lead_car(controller: Any, steps: int, dt_s: float
 
 
 def closed_loop(controller: Any, map_: MapSnapshot, x0: Sequence[float], steps: int,
-                agents: Any = lambda t: ()) -> list[tuple[float, np.ndarray, Any]]:
+                agents: Any = lambda t: (), *, lane_id: Optional[str] = None,
+                before_step: Optional[Callable[[int], None]] = None
+                ) -> list[tuple[float, np.ndarray, Any]]:
     """Drive ``controller`` on ``map_`` for ``steps`` control steps from the state ``x0``
     (x, y, yaw, v), each control applied to the MPC's own bicycle model
-    (``solver.simulate_bicycle``); ``agents(t)``: the agents at time t. Returns (t, state
-    after the step, control) per step. The tests' closed loop."""
+    (``solver.simulate_bicycle``); ``agents(t)``: the agents at time t; ``lane_id``: the
+    ego state's lane; ``before_step(k)``: called before step k's control is computed
+    (fault injection, reading the plan of step k - 1). Returns (t, state after the step,
+    control) per step. The tests' closed loop."""
     from lmpc_mpc.solver import simulate_bicycle  # CasADi only where a loop is driven
 
     dt = controller.config.dt_s
@@ -225,9 +229,11 @@ def closed_loop(controller: Any, map_: MapSnapshot, x0: Sequence[float], steps: 
     log = []
     for k in range(steps):
         t = k * dt
+        if before_step is not None:
+            before_step(k)
         ego = ego_state(x_m=float(x[0]), y_m=float(x[1]),
                         yaw_rad=float(math.remainder(x[2], 2 * math.pi)), v_mps=float(x[3]),
-                        stamp_s=t, seq=k)
+                        stamp_s=t, seq=k, lane_id=lane_id)
         ctl = controller.compute(observation(map_, ego, agents(t)))
         x = simulate_bicycle(x, np.array([[ctl.accel_mps2, ctl.steer_rad]]), dt_s=dt)[1]
         log.append((t, x.copy(), ctl))

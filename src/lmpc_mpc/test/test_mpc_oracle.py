@@ -28,7 +28,7 @@ from lmpc_msgs_py.vehicle import DEFAULT_VEHICLE
 from lmpc_mpc import synthetic as S
 from lmpc_mpc.config import load_mpc_config
 from lmpc_mpc.controller import MpcController
-from lmpc_mpc.solver import MpcProblem, MpcResult, MpcSolver, simulate_bicycle
+from lmpc_mpc.solver import MpcProblem, MpcResult, MpcSolver
 
 CFG = load_mpc_config()
 GOLDEN = Path(__file__).parent / "data" / "mpc_golden_straight_lead.json"
@@ -156,28 +156,23 @@ def _run_with_failures(solver: MpcSolver, ctrl: MpcController, fail: range, step
                              np.full((CFG.horizon + 1, 4), np.nan), 0.0, 0)
         return real(problem)
 
+    plans: dict[str, np.ndarray] = {}
+
+    def before_step(k: int) -> None:
+        failing["on"] = k in fail
+        if k == fail.start:
+            plans["before"] = ctrl._plan.copy()  # the plan of step fail.start - 1
+
     solver.solve = solve  # type: ignore[method-assign]
-    m = S.straight_road()
     try:
-        x = np.array([10.0, -4.8, 0.0, v0_mps])
-        modes, ctls = [], []
-        plan = None
-        for k in range(steps):
-            failing["on"] = k in fail
-            ego = S.ego_state(x_m=float(x[0]), y_m=float(x[1]), yaw_rad=float(x[2]),
-                              v_mps=float(x[3]), stamp_s=k * CFG.dt_s, seq=k, lane_id="E0_0")
-            ctl = ctrl.compute(S.observation(m, ego))
-            if k == fail.start - 1:
-                plan = ctrl._plan.copy()
-            modes.append(ctl.mode)
-            ctls.append(ctl)
-            assert math.isfinite(ctl.accel_mps2) and math.isfinite(ctl.steer_rad)
-            x = simulate_bicycle(x, np.array([[ctl.accel_mps2, ctl.steer_rad]]),
-                                 dt_s=CFG.dt_s)[1]
+        log = S.closed_loop(ctrl, S.straight_road(), (10.0, -4.8, 0.0, v0_mps), steps,
+                            lane_id="E0_0", before_step=before_step)
     finally:
         del solver.solve
-    assert plan is not None
-    return modes, ctls, plan
+    ctls = [c for _, _, c in log]
+    for c in ctls:
+        assert math.isfinite(c.accel_mps2) and math.isfinite(c.steer_rad)
+    return [c.mode for c in ctls], ctls, plans["before"]
 
 
 def test_failures_give_shifted_plan_then_brake_then_recover(solver: MpcSolver) -> None:
