@@ -4,11 +4,19 @@
     lmpc-topics list [--window-s 3]        topics, types and measured rates
     lmpc-topics echo /lmpc/decision [-n 1] payloads decoded and pretty-printed through the schemas
     lmpc-topics hz /lmpc/control           wall and sim-time rates of one topic
+    lmpc-topics instruct "drive conservatively" [--ego-id ego_2]
+                                           send an instruction to the running planner
 
 JSON payloads on ``std_msgs/String`` topics are decoded with the schema their
 ``schema`` field names; anything that fails validation is shown with the reason.
 On a full ROS 2 install the equivalents are ``ros2 topic list -t``,
-``ros2 topic echo`` and ``ros2 topic hz`` (see the README).
+``ros2 topic echo``, ``ros2 topic hz`` and ``ros2 topic pub --once`` (see the README).
+
+``instruct`` checks the text as the planner will (a text it would refuse is refused here,
+exit 2), waits for the planner's subscription to ``/lmpc/instruction`` (exit 1 when none
+matches within ``--discovery-s``), publishes the text once (reliable, volatile: like
+``ros2 topic pub --once``) and stays up ``--linger-s`` so the sample is delivered. The
+planner acts on it from its next decision and logs "instruction received".
 """
 from __future__ import annotations
 
@@ -196,6 +204,32 @@ def cmd_hz(node: Node, args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_instruct(node: Node, args: argparse.Namespace) -> int:
+    from std_msgs.msg import String
+
+    from lmpc_llm_planner.prompt import instruction_error
+
+    refused = instruction_error(args.text)
+    if refused:
+        print(f"instruction refused: {refused}", file=sys.stderr)
+        return 2
+    topic = lmpc_topics.topic(lmpc_topics.INSTRUCTION, args.ego_id or None)
+    pub = node.create_publisher(String, topic, lmpc_qos.STREAM)
+    spin_for(node, args.discovery_s, stop=lambda: pub.get_subscription_count() > 0)
+    readers = pub.get_subscription_count()
+    if readers == 0:
+        print(f"no planner subscribes to {topic} (waited {args.discovery_s:g} s): is the "
+              f"graph running with this ROS_DOMAIN_ID"
+              f"{'' if args.ego_id else ' (several egos: --ego-id)'}?", file=sys.stderr)
+        return 1
+    msg = String()
+    msg.data = args.text
+    pub.publish(msg)
+    spin_for(node, args.linger_s)
+    print(f"sent to {readers} subscriber(s) of {topic} ({len(args.text)} characters)")
+    return 0
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
@@ -212,11 +246,17 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     p_hz = sub.add_parser("hz", help="wall and sim-time rate of a topic")
     p_hz.add_argument("topic")
     p_hz.add_argument("--window-s", type=float, default=5.0)
+    p_in = sub.add_parser("instruct", help="send an instruction (untrusted text) to the planner")
+    p_in.add_argument("text")
+    p_in.add_argument("--ego-id", default="", help="the ego's planner in a multi-ego graph")
+    p_in.add_argument("--linger-s", type=float, default=1.0,
+                      help="stay up this long after publishing (delivery)")
     args = ap.parse_args(argv)
     rclpy.init()
     node = rclpy.create_node("lmpc_topics")
     try:
-        return {"list": cmd_list, "echo": cmd_echo, "hz": cmd_hz}[args.cmd](node, args)
+        return {"list": cmd_list, "echo": cmd_echo, "hz": cmd_hz,
+                "instruct": cmd_instruct}[args.cmd](node, args)
     except KeyboardInterrupt:
         return 130
     finally:

@@ -1,6 +1,7 @@
 """The graph's topics as a separate ROS node sees them: names, types, payloads, rates."""
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import time
@@ -68,6 +69,7 @@ def test_topics_types_payloads_and_rates(tmp_path: Path, domain_id: int) -> None
     node.create_subscription(Odometry, "/lmpc/ego/odom", odom.append, keep_all)
     seen: dict[str, list[str]] = {}
     lister: subprocess.Popen[str] | None = None
+    instructor: subprocess.Popen[str] | None = None
     # The observer joins the domain first, so it sees every endpoint from the start.
     # Realtime clock: the graph lives long enough (~20 s) to be inspected while it runs.
     graph = subprocess.Popen(
@@ -88,10 +90,17 @@ def test_topics_types_payloads_and_rates(tmp_path: Path, domain_id: int) -> None
                     [sys.executable, str(TOPICS), "--discovery-s", "12", "--settle-s", "5", "list",
                      "--window-s", "2"],
                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            if instructor is None and len(received["decision"]) >= 2:
+                # an instruction in the middle of the episode, sent as a user would
+                instructor = subprocess.Popen(
+                    [sys.executable, str(TOPICS), "--discovery-s", "12", "instruct",
+                     "drive conservatively"],
+                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         out = graph.communicate(timeout=60)[0]
         listing = lister.communicate(timeout=60)[0] if lister is not None else ""
+        sent = instructor.communicate(timeout=60)[0] if instructor is not None else ""
     finally:
-        for proc in (graph, lister):
+        for proc in (graph, lister, instructor):
             if proc is not None and proc.poll() is None:
                 proc.kill()
         node.destroy_node()
@@ -118,3 +127,15 @@ def test_topics_types_payloads_and_rates(tmp_path: Path, domain_id: int) -> None
     decision_hz = (len(stamps) - 1) / (stamps[-1] - stamps[0])
     assert 0.38 <= decision_hz <= 2.0, decision_hz
     assert all(d.source == "rules" for d in decisions)
+    # the instruction: delivered, logged, and in force from a decision after it on
+    assert instructor is not None and instructor.returncode == 0, sent
+    assert "sent to 1 subscriber(s) of /lmpc/instruction" in sent, sent
+    run_dir = tmp_path / "run"
+    assert "instruction received (20 characters)" in (run_dir / "planner.log").read_text()
+    logged = [json.loads(line) for line in
+              (run_dir / "decisions.jsonl").read_text().splitlines()]
+    told = [d["instruction"] for d in logged]
+    assert told[0] is None and told[-1] == "drive conservatively", told
+    k = told.index("drive conservatively")
+    assert all(t is None for t in told[:k]), told
+    assert all(t == "drive conservatively" for t in told[k:]), told
