@@ -62,8 +62,9 @@ def add_args(ap: argparse.ArgumentParser) -> None:
                          "resolve shared conflicts by a fixed rule set), central (a "
                          "coordinator node sends directives)")
     ap.add_argument("--planner-replay", type=Path, metavar="DIR",
-                    help="several egos, --planner replay: the finished multi-ego run folder "
-                         "whose DIR/ego_k/decisions.jsonl ego_k replays")
+                    help="--planner replay: the finished run folder whose decision log the "
+                         "planner replays (DIR/decisions.jsonl; several egos: "
+                         "DIR/ego_k/decisions.jsonl for ego_k)")
     ap.add_argument("--coordinator-backend", choices=COORDINATOR_BACKENDS, default="rules",
                     help="--coordination central: rules (the fixed rule set), openai / local "
                          "(an LLM; endpoint and model as the planner's: the openai / local "
@@ -95,7 +96,7 @@ def check_args(args: argparse.Namespace, work_dir: Path) -> Optional[str]:
         if (args.egos or 1) != 1 or args.coordination != "none":
             return "--egos / --coordination need a multi-ego family (--scenario), not --scene"
         args.egos = 1
-        return _single_ego_flags(args)
+        return _single_ego_flags(args, work_dir.parent)
     try:
         n = scene_egos(args.scenario, args.seed, work_dir)
     except Exception as exc:  # noqa: BLE001 - a scene that cannot be built: one line
@@ -108,7 +109,7 @@ def check_args(args: argparse.Namespace, work_dir: Path) -> Optional[str]:
     if args.egos == 1:
         if args.coordination != "none":
             return f"--coordination {args.coordination} needs several egos (--egos {n})"
-        return _single_ego_flags(args)
+        return _single_ego_flags(args, work_dir.parent)
     if args.planner not in MULTI_PLANNERS:
         return (f"--planner {args.planner}: a multi-ego graph runs the planners "
                 f"{', '.join(MULTI_PLANNERS)} (the mock LLM node has no coordination; "
@@ -123,20 +124,39 @@ def check_args(args: argparse.Namespace, work_dir: Path) -> Optional[str]:
 
 
 def _replay_flags(args: argparse.Namespace, run_dir: Path) -> Optional[str]:
+    """``--planner replay`` / ``--planner-replay DIR``: DIR is a finished run folder (not
+    this run's) with the decision log of every ego (one ego: ``DIR/decisions.jsonl``);
+    one ego may instead name its log in ``--planner-config`` (``replay.log_path``)."""
     if args.planner_replay is not None and args.planner != "replay":
         return "--planner-replay needs --planner replay"
     if args.planner != "replay":
         return None
     if args.planner_replay is None:
-        return ("--planner replay with several egos needs --planner-replay DIR (a finished "
-                "multi-ego run folder with DIR/ego_k/decisions.jsonl)")
+        if args.egos != 1:
+            return ("--planner replay with several egos needs --planner-replay DIR (a "
+                    "finished multi-ego run folder with DIR/ego_k/decisions.jsonl)")
+        from lmpc_llm_planner.config import PlannerConfigError, load_planner_config
+
+        try:
+            log_path = load_planner_config(args.planner_config).replay.log_path
+        except PlannerConfigError:
+            return None  # run_graph names the bad file
+        return None if log_path else (
+            "--planner replay needs --planner-replay DIR (a finished run folder with "
+            "DIR/decisions.jsonl) or a --planner-config whose replay.log_path names a log")
     if args.planner_replay.resolve() == run_dir.resolve():
         return "--planner-replay must be another run folder than --run-dir (its logs are read)"
-    for eid in ego_ids(args.egos):
-        log = args.planner_replay / eid / "decisions.jsonl"
+    for eid in ego_ids(args.egos) if args.egos != 1 else [None]:
+        log = replay_log(args.planner_replay, eid)
         if not log.is_file():
-            return f"--planner-replay: {log} does not exist (the decision log of {eid})"
+            return f"--planner-replay: {log} does not exist (the decision log of " \
+                   f"{eid or 'the ego'})"
     return None
+
+
+def replay_log(run_dir: Path, eid: Optional[str]) -> Path:
+    """The decision log of ``eid`` in a finished run folder (None: a single-ego run's)."""
+    return run_dir / eid / "decisions.jsonl" if eid else run_dir / "decisions.jsonl"
 
 
 def _coordinator_flags(args: argparse.Namespace) -> Optional[str]:
@@ -155,11 +175,10 @@ def _coordinator_flags(args: argparse.Namespace) -> Optional[str]:
     return None
 
 
-def _single_ego_flags(args: argparse.Namespace) -> Optional[str]:
-    """A multi-ego option given to a single-ego run: why not (None: none given)."""
+def _single_ego_flags(args: argparse.Namespace, run_dir: Path) -> Optional[str]:
+    """A multi-ego option given to a single-ego run: why not (None: none given); the
+    replay flags."""
     for flag, given, needs in (
-            ("--planner-replay", args.planner_replay is not None,
-             "several egos (one ego: --planner-config names its replay log)"),
             ("--coordinator-backend", args.coordinator_backend != "rules",
              "several egos and --coordination central"),
             ("--coordinator-config", args.coordinator_config is not None,
@@ -168,7 +187,7 @@ def _single_ego_flags(args: argparse.Namespace) -> Optional[str]:
              "several egos and --coordination central")):
         if given:
             return f"{flag} needs {needs}"
-    return None
+    return _replay_flags(args, run_dir)
 
 
 def ego_ids(n: int) -> list[str]:
@@ -245,14 +264,17 @@ def coordinator_params(args: argparse.Namespace, run_dir: Path, ids: list[str]
     return params
 
 
-def ego_planner_config(args: argparse.Namespace, eid: str, ego_dir: Path) -> Optional[Path]:
-    """The planner YAML of ``eid`` (None: the packaged one): ``--planner-config`` (``local``:
-    planner_local.yaml), written to ``ego_dir/planner_config.yaml`` when the ego needs its
-    own copy (``--planning-period``; ``replay``: its own log, ``--planner-replay``)."""
+def ego_planner_config(args: argparse.Namespace, eid: Optional[str], ego_dir: Path
+                       ) -> Optional[Path]:
+    """The planner YAML of ``eid`` (None: the single ego; returns None for the packaged
+    one): ``--planner-config`` (``local``: planner_local.yaml), written to
+    ``ego_dir/planner_config.yaml`` when the ego needs its own copy (``--planning-period``;
+    ``--planner-replay``: its own log)."""
     from lmpc_llm_planner.config import LOCAL_CONFIG_PATH
 
     base = args.planner_config or (LOCAL_CONFIG_PATH if args.planner == "local" else None)
-    if args.planning_period is None and args.planner != "replay":
+    replay = args.planner == "replay" and args.planner_replay is not None
+    if args.planning_period is None and not replay:
         return None if base is None else Path(base).resolve()
     import yaml
 
@@ -268,8 +290,8 @@ def ego_planner_config(args: argparse.Namespace, eid: str, ego_dir: Path) -> Opt
     else:
         data = read_mapping(Path(base or DEFAULT_CONFIG_PATH), what="planner config",
                             error=PlannerConfigError)
-    if args.planner == "replay":
-        log = (args.planner_replay / eid / "decisions.jsonl").resolve()
+    if replay:
+        log = replay_log(args.planner_replay, eid).resolve()
         # stamps may shift by a step or two in the graph (ReplayConfig.stamp_window_s)
         data["replay"] = {**(data.get("replay") or {}), "log_path": str(log),
                           "stamp_window_s": 0.5}

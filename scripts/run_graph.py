@@ -308,7 +308,7 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
                          "endpoint (LMPC_OPENAI_BASE_URL, LMPC_OPENAI_MODEL, "
                          "LMPC_OPENAI_API_KEY);\n"
                          "local: SmolLM2-135M in llama.cpp; replay: a recorded decision log "
-                         "(--planner-config names it; several egos: --planner-replay);\n"
+                         "(--planner-replay RUN_DIR, or --planner-config names it);\n"
                          "none: the MPC baseline alone; "
                          "mock: the mock LLM node playing --mock-script")
     ap.add_argument("--planner-config", type=Path,
@@ -432,14 +432,9 @@ def node_params(args: argparse.Namespace, run_dir: Path) -> dict[str, dict[str, 
         elif args.planner == "local":
             from lmpc_llm_planner.config import LOCAL_CONFIG_PATH  # deadline the model can meet
             params["planner"]["config_file"] = str(LOCAL_CONFIG_PATH)
-        if args.planning_period is not None:  # that config at another cadence, kept
-            import yaml
-            from lmpc_llm_planner.config import cadence_config
-
-            cadence = run_dir / "planner_config.yaml"
-            cadence.write_text(yaml.safe_dump(cadence_config(
-                args.planning_period, params["planner"].get("config_file")), sort_keys=False))
-            params["planner"]["config_file"] = str(cadence)
+        own = graph_multi.ego_planner_config(args, None, run_dir)
+        if own is not None:  # at another cadence, or replaying --planner-replay's log: kept
+            params["planner"]["config_file"] = str(own)
     elif args.planner == "mock":
         params["mock_llm"] = {"use_sim_time": True, "script_file": str(args.mock_script.resolve())}
         if args.decision_space is not None:

@@ -64,3 +64,35 @@ def test_an_instruction_the_planner_would_refuse_is_refused_by_the_script(script
                           "x" * 2001], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert "--instruction: 2001 characters exceeds 2000" in out.stderr
+
+
+def test_run_graph_replays_one_ego_from_a_run_folder(tmp_path: Path) -> None:
+    """``--planner replay --planner-replay DIR`` with one ego replays DIR/decisions.jsonl
+    (the planner config written to the run folder names it); without a log the run is
+    refused before any node starts, in one line."""
+    import yaml
+
+    from lmpc_scripts import graph_multi, run_graph
+
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "decisions.jsonl").write_text("")
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+
+    def check(*extra: str) -> tuple[argparse.Namespace, str | None]:
+        args = run_graph.parse_args(["--scenario", "usi", "--seed", "0", *extra])
+        return args, graph_multi.check_args(args, run_dir / "scene")
+
+    for extra, why in (((), "--planner replay needs --planner-replay DIR (a finished run "
+                            "folder with DIR/decisions.jsonl)"),
+                       (("--planner-replay", str(tmp_path / "nowhere")),
+                        "decisions.jsonl does not exist (the decision log of the ego)"),
+                       (("--planner-replay", str(run_dir)), "another run folder")):
+        error = check("--planner", "replay", *extra)[1]
+        assert error is not None and why in error and "\n" not in error, error
+    args, error = check("--planner", "replay", "--planner-replay", str(old))
+    assert error is None and args.egos == 1
+    config = run_graph.node_params(args, run_dir)["planner"]["config_file"]
+    replay = yaml.safe_load(Path(str(config)).read_text())["replay"]
+    assert replay["log_path"] == str((old / "decisions.jsonl").resolve())
