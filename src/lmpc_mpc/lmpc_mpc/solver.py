@@ -176,6 +176,11 @@ class MpcSolver:
         self._fallback: Optional[MpcSolver] = None
         self.rti_fallbacks = 0
         """``sqp_rti``: steps FATROP solved because the RTI did not deliver them."""
+        self._retry: Optional[MpcSolver] = None
+        self.retries = 0
+        """FATROP solves that failed and went to ``config.retry_solver``."""
+        self.rescues = 0
+        """Of those, the ones the retry solver delivered."""
         self._warm: Optional[np.ndarray] = None
         self._warm_slots: Optional[int] = None
         self._reconverge_next = False
@@ -334,6 +339,21 @@ class MpcSolver:
                 self.compiled(size)
         if self.solver_name == "sqp_rti" and self.config.rti_fallback:
             self._nlp_fallback().warm_up()
+        elif self._retries_to() is not None and self.enforce_time_budget:
+            # realtime: a retry must not pay for its build inside a step (sync runs and
+            # the benchmark build a retry size when it is first needed)
+            self._retry_solver().warm_up()
+
+    def _retries_to(self) -> Optional[str]:
+        """The solver a failed solve of this one goes to (FATROP only), or None."""
+        retry = self.config.retry_solver
+        return retry if self.solver_name == "fatrop" and retry != "none" else None
+
+    def _retry_solver(self) -> "MpcSolver":
+        if self._retry is None:
+            self._retry = MpcSolver(self.config, self.vehicle, solver=self._retries_to())
+            self._retry.enforce_time_budget = self.enforce_time_budget
+        return self._retry
 
     def _nlp_fallback(self) -> "MpcSolver":
         """The FATROP solver of the same problem that answers a step the RTI does not."""
@@ -578,11 +598,33 @@ class MpcSolver:
         stage[n, NX:] = stage[n - 1, NX:]
         xs = stage[:, :NX]
         us = stage[:n, NX:]
-        if not ok:
-            return self._fail(f"not converged: {status}", t0, iters, elapsed)
-        if not (np.all(np.isfinite(xs)) and np.all(np.isfinite(us))):
-            return self._fail("non-finite solution", t0, iters, elapsed)
-        return self._accept(stage, n_slots, status, t0, iters, elapsed)
+        why = None if ok else f"not converged: {status}"
+        if ok and not (np.all(np.isfinite(xs)) and np.all(np.isfinite(us))):
+            why = "non-finite solution"
+        if why is None:
+            return self._accept(stage, n_slots, status, t0, iters, elapsed)
+        if self._retries_to() is not None and (
+                not self.enforce_time_budget or n_slots in self._retry_solver()._compiled):
+            return self._solve_by_retry(p, x0, n_slots, t0, iters, why)
+        return self._fail(why, t0, iters, elapsed)
+
+    def _solve_by_retry(self, p: np.ndarray, x0: np.ndarray, n_slots: int, t0: float,
+                        iters: int, why: str) -> MpcResult:
+        """``config.retry_solver`` on the step this solver failed (``why``), from the warm
+        start this solve had: its solution (or failure) is this step's, and warm-starts
+        the next step. Solve time and iterations count both attempts."""
+        retry = self._retry_solver()
+        retry._warm, retry._warm_slots = self._warm, self._warm_slots
+        retry._cpu0 = self._cpu0
+        res = retry._solve_nlp(p, x0, n_slots, t0)
+        self.retries += 1
+        self.rescues += int(res.success)
+        self.over_budget += retry.over_budget
+        retry.over_budget = 0
+        self._warm, self._warm_slots = retry._warm, retry._warm_slots
+        name = retry.solver_name.upper()
+        return replace(res, status=f"{res.status} ({name} after FATROP: {why})"[:190],
+                       iterations=iters + res.iterations)
 
     def _solve_rti(self, p: np.ndarray, x0: np.ndarray, n_slots: int,
                    t0: float) -> MpcResult:
