@@ -100,6 +100,19 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     print(f"lmpc_mpc.codegen: {cfg.solver}, {len(done)} of "
           f"{len(cfg.agent_slot_sizes)} problem sizes as generated C (slots {done}) in "
           f"{time.perf_counter() - started:.1f} s; cache {solver_cache.cache_dir()}")
+    if cfg.solver != "ipopt" and cfg.retry_solver != "none":
+        # the retry of a failed FATROP solve (MpcConfig.retry_solver), interpreted, in the
+        # cache for sync runs and for realtime ones (its wall-time cap is compiled in), so
+        # no run builds it: a realtime MPC node loads it at warm-up
+        started = time.perf_counter()
+        for realtime in (False, True):
+            retry = MpcSolver(cfg.model_copy(update={"codegen": "off"}),
+                              solver=cfg.retry_solver)
+            retry.enforce_time_budget = realtime
+            for size in cfg.agent_slot_sizes:
+                retry.compiled(size)
+        print(f"lmpc_mpc.codegen: the {cfg.retry_solver} retry's sizes (sync, realtime) in "
+              f"the cache in {time.perf_counter() - started:.1f} s")
     return 0
 
 
