@@ -603,8 +603,11 @@ class MpcSolver:
             why = "non-finite solution"
         if why is None:
             return self._accept(stage, n_slots, status, t0, iters, elapsed)
-        if self._retries_to() is not None and (
-                not self.enforce_time_budget or n_slots in self._retry_solver()._compiled):
+        if self._retries_to() is not None and (not self.enforce_time_budget or (
+                n_slots in self._retry_solver()._compiled
+                and elapsed < self.config.time_budget_s)):
+            # realtime: only with the retry built (warm_up) and time left in the step's
+            # budget; IPOPT stops at the budget's wall time, an overrun is a failure
             return self._solve_by_retry(p, x0, n_slots, t0, iters, why)
         return self._fail(why, t0, iters, elapsed)
 

@@ -119,3 +119,11 @@ def test_realtime_retries_only_with_the_retry_built_at_warm_up() -> None:
     ctls, _ = _drive(solver, {3})
     assert ctls[3].mode == "baseline" and solver.retries == 1 and solver.rescues == 1
     assert np.isfinite(ctls[3].accel_mps2)
+
+
+def test_realtime_does_not_retry_a_step_already_over_its_budget() -> None:
+    solver = MpcSolver(CFG.model_copy(update={"time_budget_s": 1e-6}))
+    solver.enforce_time_budget = True
+    solver.warm_up()
+    ctls, _ = _drive(solver, {3})
+    assert solver.retries == 0 and ctls[3].mode != "baseline"
