@@ -93,15 +93,16 @@ class MpcConfig(BaseModel):
     ``rti_step_*``, a warm step moving one by more than ``rti_max_move_*``) is solved by
     FATROP from the same warm start and parameters (the hybrid of docs/lmpc_mpc.md); off:
     such a step is a failed solve (shifted plan, then the brake)."""
-    retry_solver: Literal["ipopt", "none"] = "ipopt"
-    """A FATROP solve that does not converge (iteration cap, a failed line search) or gives
-    non-finite numbers is solved once more by IPOPT from the same warm start and
-    parameters; its solution, if it converges, is the step's (the solve time counts both;
-    in realtime within the same ``time_budget_s``). FATROP's filter line search gives up
-    where IPOPT's restoration phase finds the optimum: 7 of 8 failed FATROP steps of
-    ``sac`` on si 100-109 (dev seeds) converged in IPOPT in 7-37 ms (docs/lmpc_mpc.md,
-    "A second solver for a failed solve"). ``none``: such a step is a failed solve
-    (shifted plan, then the brake)."""
+    retry_solver: Literal["ipopt", "none"] = "none"
+    """``ipopt``: a FATROP solve that does not converge (iteration cap, a failed line
+    search) or gives non-finite numbers is solved once more by IPOPT from the same warm
+    start and parameters; its solution, if it converges, is the step's (the solve time
+    counts both; in realtime within the same ``time_budget_s``). ``none`` (default): such
+    a step is a failed solve (shifted plan, then the brake). IPOPT converges on most steps
+    FATROP gives up on (7 of 8 of ``sac`` on si 100-109) but sometimes to another local
+    optimum (a hard swerve against the decision's bias): measured, it cut Table I's
+    fallback steps by ~90 % and put one published style scene off its route, so it is
+    opt-in (docs/lmpc_mpc.md, "A second solver for a failed solve")."""
     rti_cold_iterations: int = Field(5, ge=1, le=50)
     """``sqp_rti``: steps from a cold start (first step, after a failure or a reset),
     where the guess is a plain roll-out and one step is not enough."""

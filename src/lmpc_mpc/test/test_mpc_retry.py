@@ -1,4 +1,5 @@
-"""A FATROP solve that fails is solved once more by IPOPT (``MpcConfig.retry_solver``).
+"""A FATROP solve that fails is solved once more by IPOPT (``MpcConfig.retry_solver:
+ipopt``, opt-in).
 
 FATROP's failure is injected (its compiled function reports "not converged" for the
 chosen steps, the numbers it computed are kept): what is tested is what happens next -
@@ -18,7 +19,7 @@ from lmpc_mpc.config import load_mpc_config
 from lmpc_mpc.controller import MpcController
 from lmpc_mpc.solver import MpcSolver
 
-CFG = load_mpc_config()
+CFG = load_mpc_config().model_copy(update={"retry_solver": "ipopt"})
 LEAD = S.agent("lead", x_m=40.0, y_m=-4.8, yaw_rad=0.0, v_mps=4.0)
 
 
