@@ -103,6 +103,12 @@ class MpcConfig(BaseModel):
     optimum (a hard swerve against the decision's bias): measured, it cut Table I's
     fallback steps by ~90 % and put one published style scene off its route, so it is
     opt-in (docs/lmpc_mpc.md, "A second solver for a failed solve")."""
+    retry_max_move_accel_mps2: float = Field(3.0, gt=0.0, le=20.0)
+    """``retry_solver``: a rescued plan that moves a planned acceleration anywhere in the
+    horizon by more than this from the shifted previous plan is not trusted (the step
+    fails as without a retry); the RTI's ``rti_max_move_accel_mps2``, not tuned."""
+    retry_max_move_steer_rad: float = Field(0.3, gt=0.0, le=2.0)
+    """``retry_solver``: the same for a planned steer angle."""
     rti_cold_iterations: int = Field(5, ge=1, le=50)
     """``sqp_rti``: steps from a cold start (first step, after a failure or a reset),
     where the guess is a plain roll-out and one step is not enough."""

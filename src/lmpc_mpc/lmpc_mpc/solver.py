@@ -603,11 +603,13 @@ class MpcSolver:
             why = "non-finite solution"
         if why is None:
             return self._accept(stage, n_slots, status, t0, iters, elapsed)
-        if self._retries_to() is not None and (not self.enforce_time_budget or (
-                n_slots in self._retry_solver()._compiled
-                and elapsed < self.config.time_budget_s)):
-            # realtime: only with the retry built (warm_up) and time left in the step's
-            # budget; IPOPT stops at the budget's wall time, an overrun is a failure
+        if self._retries_to() is not None and self._warm is not None and (
+                not self.enforce_time_budget or (
+                    n_slots in self._retry_solver()._compiled
+                    and elapsed < self.config.time_budget_s)):
+            # only from a previous plan (the rescue is checked against it); realtime: only
+            # with the retry built (warm_up) and time left in the step's budget; IPOPT
+            # stops at the budget's wall time, an overrun is a failure
             return self._solve_by_retry(p, x0, n_slots, t0, iters, why)
         return self._fail(why, t0, iters, elapsed)
 
@@ -616,16 +618,31 @@ class MpcSolver:
         """``config.retry_solver`` on the step this solver failed (``why``), from the warm
         start this solve had: its solution (or failure) is this step's, and warm-starts
         the next step. Solve time and iterations count both attempts."""
+        n = self.n
+        shifted = self._initial_guess(x0, n_slots)
+        plan = np.empty((n + 1, NX + NU))
+        plan.ravel()[: len(shifted)] = shifted
         retry = self._retry_solver()
         retry._warm, retry._warm_slots = self._warm, self._warm_slots
         retry._cpu0 = self._cpu0
         res = retry._solve_nlp(p, x0, n_slots, t0)
         self.retries += 1
-        self.rescues += int(res.success)
         self.over_budget += retry.over_budget
         retry.over_budget = 0
-        self._warm, self._warm_slots = retry._warm, retry._warm_slots
         name = retry.solver_name.upper()
+        cfg = self.config
+        if res.success:
+            # trusted only near the plan it started from: the non-convex problem has other
+            # optima, and IPOPT "converged" to full throttle and a hard left under a
+            # decision braking and steering right (lane 18, "drive aggressively")
+            move = np.max(np.abs(res.controls - plan[:n, NX:]), axis=0)
+            if move[0] > cfg.retry_max_move_accel_mps2 or move[1] > cfg.retry_max_move_steer_rad:
+                return self._fail(
+                    f"{name} after FATROP ({why}) moved the plan by {move[0]:.2f} m/s^2, "
+                    f"{move[1]:.3f} rad: not trusted"[:190], t0, iters + res.iterations,
+                    res.solve_time_s)
+        self.rescues += int(res.success)
+        self._warm, self._warm_slots = retry._warm, retry._warm_slots
         return replace(res, status=f"{res.status} ({name} after FATROP: {why})"[:190],
                        iterations=iters + res.iterations)
 

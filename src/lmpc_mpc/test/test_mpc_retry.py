@@ -42,7 +42,8 @@ class _Failing:
         return st
 
 
-def _drive(solver: MpcSolver, fail_at: set[int], steps: int = 8) -> tuple[list[Any], _Failing]:
+def _drive(solver: MpcSolver, fail_at: set[int], steps: int = 8
+           ) -> tuple[list[Any], _Failing]:
     """``steps`` closed-loop steps behind a slower car, FATROP failing at ``fail_at``."""
     solver.reset()
     ctrl = MpcController(solver.config, solver=solver)
@@ -76,17 +77,8 @@ def test_a_failed_fatrop_solve_is_solved_by_ipopt() -> None:
         assert c.steer_rad == pytest.approx(p.steer_rad, abs=2e-3)
 
 
-def test_the_retry_s_status_says_what_failed() -> None:
-    solver = MpcSolver(CFG)
-    ctrl = MpcController(CFG, solver=solver)
-    obs = S.observation(S.straight_road(), S.ego_state(x_m=10.0, y_m=-4.8, yaw_rad=0.0,
-                                                       v_mps=8.0, lane_id="E0_0"), [LEAD])
-    n_slots = solver.slots_for(1)
-    comp = solver.compiled(n_slots)
-    failing = _Failing(comp.solver)
-    failing.on = True
-    solver._compiled[n_slots] = type(comp)(failing, *[getattr(comp, f) for f in (
-        "n_slots", "lbx", "ubx", "lbg", "ubg", "n_p")])
+def _statuses(solver: MpcSolver, fail_at: set[int], steps: int) -> list[str]:
+    """The solve statuses of ``_drive``."""
     statuses: list[str] = []
     real = solver.solve
 
@@ -96,9 +88,35 @@ def test_the_retry_s_status_says_what_failed() -> None:
         return res
 
     solver.solve = solve  # type: ignore[method-assign]
-    ctrl.compute(obs)
+    try:
+        _drive(solver, fail_at, steps)
+    finally:
+        del solver.solve
+    return statuses
+
+
+def test_the_retry_s_status_says_what_failed() -> None:
+    statuses = _statuses(MpcSolver(CFG), {2}, 3)
     said = "Solve_Succeeded (IPOPT after FATROP: not converged: failed (1))"
-    assert statuses and statuses[-1].startswith(said), statuses
+    assert statuses[2].startswith(said) and not statuses[1].startswith(said), statuses
+
+
+def test_a_rescue_far_from_the_previous_plan_is_not_trusted() -> None:
+    """A rescued plan moving a control beyond ``retry_max_move_*`` from the shifted previous
+    plan fails the step (another optimum of the problem, not the one being tracked)."""
+    solver = MpcSolver(CFG.model_copy(update={"retry_max_move_accel_mps2": 1e-6}))
+    statuses = _statuses(solver, {3}, 5)
+    assert solver.retries == 1 and solver.rescues == 0
+    assert "not trusted" in statuses[3] and "IPOPT after FATROP" in statuses[3], statuses
+    ctls, _ = _drive(solver, {3}, 5)
+    assert ctls[3].mode == "shifted"
+
+
+def test_no_retry_without_a_previous_plan() -> None:
+    """The first solve of an episode has no plan to check a rescue against: not retried."""
+    solver = MpcSolver(CFG)
+    ctls, _ = _drive(solver, {0}, 2)
+    assert solver.retries == 0 and ctls[0].mode != "baseline"
 
 
 def test_without_a_retry_a_failed_solve_falls_back_as_before() -> None:
