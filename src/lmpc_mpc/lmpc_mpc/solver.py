@@ -564,14 +564,23 @@ class MpcSolver:
         RTI had; its solution (or failure) is this step's, and warm-starts the next RTI
         step. The solve time counts both attempts."""
         fb = self._nlp_fallback()
-        fb._warm, fb._warm_slots = warm
-        fb._cpu0 = self._cpu0
-        res = fb._solve_nlp(p, x0, n_slots, t0)
+        res = self._solve_in(fb, p, x0, n_slots, t0, warm)
         self.rti_fallbacks += 1
-        self.over_budget += fb.over_budget  # the fallback's overrun is this solver's
-        fb.over_budget = 0
         self._warm, self._warm_slots = fb._warm, fb._warm_slots
         return replace(res, status=f"{res.status} (FATROP after the RTI: {why})"[:190])
+
+    def _solve_in(self, other: "MpcSolver", p: np.ndarray, x0: np.ndarray, n_slots: int,
+                  t0: float, warm: tuple[Optional[np.ndarray], Optional[int]]
+                  ) -> MpcResult:
+        """One NLP solve of this step by ``other`` (the RTI's FATROP fallback, FATROP's
+        retry) from ``warm``, timed from this step's ``t0``; its overrun counts here. The
+        caller takes ``other``'s new warm start if it keeps the result."""
+        other._warm, other._warm_slots = warm
+        other._cpu0 = self._cpu0
+        res = other._solve_nlp(p, x0, n_slots, t0)
+        self.over_budget += other.over_budget
+        other.over_budget = 0
+        return res
 
     def _solve_nlp(self, p: np.ndarray, x0: np.ndarray, n_slots: int,
                    t0: float) -> MpcResult:
@@ -610,25 +619,22 @@ class MpcSolver:
             # only from a previous plan (the rescue is checked against it); realtime: only
             # with the retry built (warm_up) and time left in the step's budget; IPOPT
             # stops at the budget's wall time, an overrun is a failure
-            return self._solve_by_retry(p, x0, n_slots, t0, iters, why)
+            return self._solve_by_retry(p, x0, n_slots, t0, iters, why, w0)
         return self._fail(why, t0, iters, elapsed)
 
     def _solve_by_retry(self, p: np.ndarray, x0: np.ndarray, n_slots: int, t0: float,
-                        iters: int, why: str) -> MpcResult:
+                        iters: int, why: str, w0: np.ndarray) -> MpcResult:
         """``config.retry_solver`` on the step this solver failed (``why``), from the warm
-        start this solve had: its solution (or failure) is this step's, and warm-starts
-        the next step. Solve time and iterations count both attempts."""
+        start this solve had (``w0``, the shifted previous plan): its solution is this
+        step's, and warm-starts the next step, if it converged within
+        ``retry_max_move_*`` of ``w0``'s controls; otherwise the step fails. Solve time
+        and iterations count both attempts."""
         n = self.n
-        shifted = self._initial_guess(x0, n_slots)
         plan = np.empty((n + 1, NX + NU))
-        plan.ravel()[: len(shifted)] = shifted
+        plan.ravel()[: len(w0)] = w0
         retry = self._retry_solver()
-        retry._warm, retry._warm_slots = self._warm, self._warm_slots
-        retry._cpu0 = self._cpu0
-        res = retry._solve_nlp(p, x0, n_slots, t0)
+        res = self._solve_in(retry, p, x0, n_slots, t0, (self._warm, self._warm_slots))
         self.retries += 1
-        self.over_budget += retry.over_budget
-        retry.over_budget = 0
         name = retry.solver_name.upper()
         cfg = self.config
         if res.success:

@@ -9,6 +9,7 @@ retry size is not built yet keep today's failure path (shifted plan, then the br
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -50,8 +51,7 @@ def _drive(solver: MpcSolver, fail_at: set[int], steps: int = 8
     n_slots = solver.slots_for(2)  # the lead and its hedge at most
     comp = solver.compiled(n_slots)
     failing = _Failing(comp.solver)
-    solver._compiled[n_slots] = type(comp)(failing, *[getattr(comp, f) for f in (
-        "n_slots", "lbx", "ubx", "lbg", "ubg", "n_p")])
+    solver._compiled[n_slots] = replace(comp, solver=failing)
 
     def before_step(k: int) -> None:
         failing.on = k in fail_at
